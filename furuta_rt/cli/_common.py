@@ -1,0 +1,35 @@
+"""Helpers shared by the subcommands."""
+
+from __future__ import annotations
+
+import argparse
+
+from furuta_rt.config import SHIPPED_RIGS, RigConfig, load_rig
+from furuta_rt.errors import UserError
+
+
+def add_config_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--config",
+        metavar="FILE",
+        default=None,
+        help=f"rig TOML file, or a shipped rig: {', '.join(SHIPPED_RIGS)} (default: thesis)",
+    )
+
+
+def rig_from_args(args: argparse.Namespace) -> RigConfig:
+    return load_rig(args.config)
+
+
+def parse_gains(text: str | None) -> list[float] | None:
+    """'l1,l2,l3,l4' → four floats, or a UserError naming the problem."""
+    if text is None:
+        return None
+    parts = [p for p in text.replace(" ", "").split(",") if p]
+    try:
+        gains = [float(p) for p in parts]
+    except ValueError:
+        raise UserError(f"--gains {text!r}: not four numbers separated by commas (e.g. 60,20,10,4)") from None
+    if len(gains) != 4:
+        raise UserError(f"--gains {text!r}: need exactly four gains l1,l2,l3,l4, got {len(gains)}")
+    return gains

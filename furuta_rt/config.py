@@ -1,0 +1,259 @@
+"""Rig configuration: pydantic models read from TOML.
+
+A rig file describes the hardware (plant parameters, actuator, sensor path, DAQ calibration), the
+controller (rate, gain design, compensation, observer), the safety limits, and the physics known
+beyond eq. 4 (``[effects]``, see furuta_rt.model.effects). Shipped rigs live in furuta_rt/rigs/.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from furuta_rt.errors import UserError
+from furuta_rt.model.effects import Effects
+from furuta_rt.model.parameters import G, LumpedParameters
+
+Positive = Annotated[float, Field(gt=0)]
+NonNegative = Annotated[float, Field(ge=0)]
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class PlantConfig(_Section):
+    """Eq. 4 parameters, given in one of three parametrisations.
+
+    thesis (appendix C): l, r, M, m, Jp, J.  general (Cazzolato & Prime 2011): m1, l1, L1, J1, m2, l2,
+    L2, J2.  lumped: alpha, beta, gamma, epsilon directly.
+    """
+
+    parametrisation: Literal["thesis", "general", "lumped"] = "thesis"
+    g: Positive = G
+    # thesis
+    l: Positive | None = None
+    r: Positive | None = None
+    M: NonNegative | None = None
+    m: NonNegative | None = None
+    Jp: Positive | None = None
+    J: Positive | None = None
+    # general
+    m1: NonNegative | None = None
+    l1: NonNegative | None = None
+    L1: Positive | None = None
+    J1: NonNegative | None = None
+    m2: Positive | None = None
+    l2: Positive | None = None
+    L2: Positive | None = None
+    J2: NonNegative | None = None
+    # lumped
+    alpha: Positive | None = None
+    beta: Positive | None = None
+    gamma: NonNegative | None = None
+    epsilon: Positive | None = None
+
+    _REQUIRED = {
+        "thesis": ("l", "r", "M", "m", "Jp", "J"),
+        "general": ("m1", "l1", "L1", "J1", "m2", "l2", "J2"),
+        "lumped": ("alpha", "beta", "gamma", "epsilon"),
+    }
+
+    @model_validator(mode="after")
+    def _complete(self) -> PlantConfig:
+        missing = [k for k in self._REQUIRED[self.parametrisation] if getattr(self, k) is None]
+        if missing:
+            raise ValueError(f"parametrisation '{self.parametrisation}' needs {', '.join(missing)}")
+        self.lumped()  # positivity of the mass matrix
+        return self
+
+    def lumped(self) -> LumpedParameters:
+        """α, β, γ, ε for this plant."""
+        if self.parametrisation == "thesis":
+            return LumpedParameters.from_thesis(
+                l=self.l, r=self.r, M=self.M, m=self.m, Jp=self.Jp, J=self.J, g=self.g  # type: ignore[arg-type]
+            )
+        if self.parametrisation == "general":
+            return LumpedParameters.from_general(
+                m1=self.m1, l1=self.l1, L1=self.L1, J1=self.J1,  # type: ignore[arg-type]
+                m2=self.m2, l2=self.l2, J2=self.J2, g=self.g,  # type: ignore[arg-type]
+            )
+        return LumpedParameters(self.alpha, self.beta, self.gamma, self.epsilon)  # type: ignore[arg-type]
+
+    @property
+    def arm_inertia(self) -> float:
+        """The arm's own inertia in this parametrisation (J, or J1 + m1 l1² for 'general')."""
+        if self.parametrisation == "thesis":
+            return float(self.J)  # type: ignore[arg-type]
+        if self.parametrisation == "general":
+            return float(self.J1 + self.m1 * self.l1**2)  # type: ignore[operator]
+        return float(self.beta)  # type: ignore[arg-type]
+
+
+class ActuatorConfig(_Section):
+    kind: Literal["torque", "dc_motor"] = "torque"
+    limit: Positive = Field(default=2.0, description="command saturation, N m (torque) or V (dc_motor)")
+    Kt: Positive | None = None
+    R: Positive | None = None
+    Ke: NonNegative | None = None
+
+    @model_validator(mode="after")
+    def _motor(self) -> ActuatorConfig:
+        if self.kind == "dc_motor" and None in (self.Kt, self.R, self.Ke):
+            raise ValueError("kind 'dc_motor' needs Kt, R and Ke")
+        return self
+
+
+class SensorConfig(_Section):
+    bessel_cutoff: Positive | None = Field(default=50.0, description="−3 dB of the θ filter, rad/s; none = direct")
+    encoder_counts_per_rev: Annotated[int, Field(gt=0)] = 4096
+    theta_rad_per_count: Positive = 2.0 * math.pi / 65536.0
+    theta_dot_rad_s_per_count: Positive = 100.0 / 65536.0
+    theta_noise: NonNegative = Field(default=2e-4, description="white noise std at the θ ADC, rad")
+    theta_dot_noise: NonNegative = Field(default=2e-3, description="white noise std at the θ̇ ADC, rad/s")
+
+
+class PolePlacement(_Section):
+    omega1: Positive = 3.0
+    omega2: Positive = 7.0
+    zeta1: Positive = 0.7
+    zeta2: Positive = 0.7
+
+
+class LQRWeights(_Section):
+    Q: Annotated[list[NonNegative], Field(min_length=4, max_length=4)] = [100.0, 1.0, 10.0, 1.0]
+    R: Positive = 10.0
+
+
+class ControlConfig(_Section):
+    rate_hz: Annotated[float, Field(gt=0, le=20000)] = 500.0
+    design: Literal["pole_placement", "lqr", "gains"] = "pole_placement"
+    pole_placement: PolePlacement = PolePlacement()
+    lqr: LQRWeights = LQRWeights()
+    gains: Annotated[list[float], Field(min_length=4, max_length=4)] | None = None
+    command_delay_ticks: Annotated[int, Field(ge=0, le=10)] = Field(
+        default=1, description="ticks between a SAMPLE and the tick its COMMAND takes effect"
+    )
+
+    @model_validator(mode="after")
+    def _gains(self) -> ControlConfig:
+        if self.design == "gains" and self.gains is None:
+            raise ValueError("design 'gains' needs gains = [l1, l2, l3, l4]")
+        return self
+
+
+class CoulombComp(_Section):
+    Fc: NonNegative = 0.0
+    epsilon: NonNegative = 0.05
+
+
+class StictionComp(_Section):
+    Fc: NonNegative = 0.0
+    Fs: NonNegative = 0.0
+    v_zero: NonNegative = 0.02
+
+
+class LuGreComp(_Section):
+    sigma0: Positive = 50.0
+    sigma1: NonNegative = 1.0
+    Fc: NonNegative = 0.0
+    Fs: NonNegative = 0.0
+    vs: Positive = 0.1
+    Fv: NonNegative = 0.0
+
+
+CompMode = Literal["none", "coulomb", "stiction", "lugre"]
+
+
+class CompensationConfig(_Section):
+    mode: CompMode = "none"
+    coulomb: CoulombComp = CoulombComp()
+    stiction: StictionComp = StictionComp()
+    lugre: LuGreComp = LuGreComp()
+
+
+class ObserverConfig(_Section):
+    accel_noise: Positive = Field(default=2.0, description="std of unmodelled arm acceleration, rad/s²")
+    phi_noise: Positive | None = Field(default=None, description="std of φ measurement, rad (default: encoder LSB/√12)")
+
+
+class SafetyConfig(_Section):
+    theta_limit: Positive = 0.5
+    phi_limit: Positive = 6.0 * math.pi
+    arm_theta: Positive = Field(default=0.1, description="|θ| below which arming is allowed, rad")
+    link_loss_periods: Annotated[int, Field(ge=1)] = 2
+    max_consecutive_overruns: Annotated[int, Field(ge=1)] = 5
+
+
+class RigConfig(_Section):
+    name: str = "thesis"
+    description: str = ""
+    plant: PlantConfig
+    actuator: ActuatorConfig = ActuatorConfig()
+    sensors: SensorConfig = SensorConfig()
+    control: ControlConfig = ControlConfig()
+    compensation: CompensationConfig = CompensationConfig()
+    observer: ObserverConfig = ObserverConfig()
+    safety: SafetyConfig = SafetyConfig()
+    effects: Effects = Effects()
+
+    def lumped(self) -> LumpedParameters:
+        return self.plant.lumped()
+
+
+SHIPPED_RIGS = ("thesis", "qube_servo2", "macstepien")
+
+
+def _format_validation_error(source: str, err: ValidationError) -> str:
+    first = err.errors()[0]
+    loc = ".".join(str(p) for p in first["loc"]) or "(top level)"
+    msg = first["msg"]
+    if first["type"] == "extra_forbidden":
+        msg = "unknown key (check the spelling; see furuta_rt/rigs/thesis.toml for all keys)"
+    more = f" (and {len(err.errors()) - 1} more problem(s))" if len(err.errors()) > 1 else ""
+    got = first.get("input")
+    got_text = f" (got {got!r})" if first["type"] != "extra_forbidden" and not isinstance(got, dict) else ""
+    return f"{source}: key '{loc}': {msg}{got_text}{more}"
+
+
+def rig_from_dict(data: dict, source: str = "config") -> RigConfig:
+    try:
+        return RigConfig.model_validate(data)
+    except ValidationError as err:
+        raise UserError(_format_validation_error(source, err)) from None
+
+
+def load_rig(path: str | Path | None = None) -> RigConfig:
+    """Load a rig from a TOML file, or a shipped rig by name (``thesis``, ``qube_servo2``, ``macstepien``).
+
+    Raises UserError with a one-line message naming the file, key and reason.
+    """
+    if path is None:
+        path = "thesis"
+    text_path = str(path)
+    if text_path in SHIPPED_RIGS:
+        text = resources.files("furuta_rt.rigs").joinpath(f"{text_path}.toml").read_text()
+        source = f"shipped rig '{text_path}'"
+    else:
+        p = Path(text_path)
+        if not p.exists():
+            raise UserError(
+                f"config file {p} does not exist; give a TOML rig file or one of: {', '.join(SHIPPED_RIGS)}"
+            )
+        if p.is_dir():
+            raise UserError(f"config {p} is a directory; give a TOML rig file")
+        try:
+            text = p.read_text()
+        except (OSError, UnicodeDecodeError) as err:
+            raise UserError(f"cannot read config file {p}: {err}") from None
+        source = str(p)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise UserError(f"{source}: not valid TOML: {err}") from None
+    return rig_from_dict(data, source)

@@ -1,0 +1,1 @@
+"""Control design, observer, friction compensation and the real-time `update` (Controller)."""

@@ -1,0 +1,90 @@
+"""The physical rig as the simulator sees it: eq. 4 plant + friction + spring + actuator + sensors.
+
+Built from a RigConfig and a set of Effects (furuta_rt.model.effects); the same builder serves the
+simulator, hil_mock and the diagnosis, so an effect means the same physics everywhere.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from furuta_rt.config import RigConfig
+from furuta_rt.model.actuator import Actuator, DCMotor
+from furuta_rt.model.effects import Effects
+from furuta_rt.model.friction import Coulomb, CoulombStiction, JointFriction, LuGre, Viscous
+from furuta_rt.model.plant import FurutaPlant
+from furuta_rt.model.sensors import BesselPath, Calibration
+
+# Pendulum-pivot Coulomb friction is simulated with eq. 1's smoothed transition (rad/s).
+PENDULUM_COULOMB_EPSILON = 0.01
+
+
+@dataclass(frozen=True, slots=True)
+class RigModel:
+    plant: FurutaPlant
+    arm_friction: JointFriction
+    pendulum_friction: JointFriction
+    actuator: Actuator
+    bessel: BesselPath | None
+    calibration: Calibration
+    spring_k: float = 0.0
+    spring_phi0: float = 0.0
+    theta_offset: float = 0.0
+    theta_noise: float = 0.0
+    theta_dot_noise: float = 0.0
+
+    @classmethod
+    def from_config(cls, rig: RigConfig, effects: Effects | None = None) -> RigModel:
+        """The rig of ``rig`` with its own ``[effects]`` plus ``effects`` on top."""
+        eff = rig.effects.merged(effects) if effects is not None else rig.effects
+        p = rig.lumped()
+        if eff.arm_inertia is not None:
+            p = p.with_arm_inertia(rig.plant.arm_inertia, eff.arm_inertia.J)
+
+        dry: Coulomb | CoulombStiction | None = None
+        fc = eff.arm_coulomb.Fc if eff.arm_coulomb else 0.0
+        if eff.arm_stiction is not None:
+            dry = CoulombStiction(Fc=fc, Fs=eff.arm_stiction.Fs)
+        elif eff.arm_coulomb is not None:
+            dry = Coulomb(Fc=fc)
+        lugre = LuGre(**eff.arm_lugre.model_dump()) if eff.arm_lugre else None
+        arm = JointFriction(
+            viscous=Viscous(eff.arm_viscous.Fv) if eff.arm_viscous else None, dry=dry, lugre=lugre
+        )
+        pend = JointFriction(
+            viscous=Viscous(eff.pendulum_viscous.bp) if eff.pendulum_viscous else None,
+            dry=Coulomb(eff.pendulum_coulomb.Fc, PENDULUM_COULOMB_EPSILON) if eff.pendulum_coulomb else None,
+        )
+        a = rig.actuator
+        motor = DCMotor(Kt=a.Kt, R=a.R, Ke=a.Ke) if a.kind == "dc_motor" else None  # type: ignore[arg-type]
+        actuator = Actuator(
+            kind=a.kind,
+            motor=motor,
+            gain=eff.input_gain.gain if eff.input_gain else 1.0,
+            deadzone=eff.input_deadzone.width if eff.input_deadzone else 0.0,
+            limit=eff.input_saturation.limit if eff.input_saturation else None,
+            delay=eff.input_delay.delay if eff.input_delay else 0.0,
+        )
+        s = rig.sensors
+        return cls(
+            plant=FurutaPlant(p),
+            arm_friction=arm,
+            pendulum_friction=pend,
+            actuator=actuator,
+            bessel=BesselPath(s.bessel_cutoff) if s.bessel_cutoff else None,
+            calibration=calibration_from_config(rig),
+            spring_k=eff.arm_spring.k if eff.arm_spring else 0.0,
+            spring_phi0=eff.arm_spring.phi0 if eff.arm_spring else 0.0,
+            theta_offset=eff.theta_offset.offset if eff.theta_offset else 0.0,
+            theta_noise=s.theta_noise,
+            theta_dot_noise=s.theta_dot_noise,
+        )
+
+
+def calibration_from_config(rig: RigConfig) -> Calibration:
+    s = rig.sensors
+    return Calibration(
+        theta_rad_per_count=s.theta_rad_per_count,
+        theta_dot_rad_s_per_count=s.theta_dot_rad_s_per_count,
+        phi_counts_per_rev=s.encoder_counts_per_rev,
+    )

@@ -1,0 +1,1 @@
+"""Shipped rig configurations (TOML)."""

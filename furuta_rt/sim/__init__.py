@@ -1,0 +1,1 @@
+"""Simulation of the rig (fixed step, physics substeps) and closed-loop runs."""

@@ -1,0 +1,16 @@
+# Shared by scripts/*: create or reuse .venv in the repo and install the project into it.
+# Usage: source scripts/_venv.sh [extras]
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="$ROOT/.venv"
+EXTRAS="${1:-}"
+if [ ! -x "$VENV/bin/python" ]; then
+    python3 -m venv "$VENV"
+fi
+STAMP="$VENV/.installed-$(cat "$ROOT/pyproject.toml" | python3 -c 'import hashlib,sys; print(hashlib.sha1(sys.stdin.buffer.read()).hexdigest()[:12])')${EXTRAS:+-$EXTRAS}"
+if [ ! -f "$STAMP" ]; then
+    "$VENV/bin/python" -m pip install -q --upgrade pip >/dev/null
+    "$VENV/bin/python" -m pip install -q -e "$ROOT${EXTRAS:+[$EXTRAS]}"
+    touch "$STAMP"
+fi
+export PATH="$VENV/bin:$PATH"
