@@ -1,0 +1,109 @@
+"""The MCAP log layout shared by the daemon's writer, replay, convert and diagnose.
+
+Every message is JSON with a JSON Schema (Foxglove plots it without plugins). ``log_time`` is the host
+clock in ns; ``publish_time`` the device clock in ns (from the SAMPLE's µs timestamp, unwrapped).
+
+Channels:
+  /furuta/tick    one per control tick: the raw SAMPLE, the SI measurement, the controller's output and
+                  the supervisor state it ran in (enough for replay to re-run the same update)
+  /furuta/timing  one per tick: period, read/update/write durations, latency, counters
+  /furuta/joint_states  foxglove.JointStates-shaped: θ and φ as two joints (position, velocity, effort)
+  /furuta/events  foxglove.Log-shaped: supervisor transitions, faults, warnings
+Metadata records:
+  "rig"     {"name": ..., "toml": <the rig config as TOML text>, "json": <RigConfig JSON>}
+  "run"     {"mode": compensation mode, "gains": "[l1,l2,l3,l4]" JSON, "rate_hz": ..., "port": ..., "version": ...}
+  "device"  the HELLO_ACK fields (calibration) as strings
+Attachment "rig.toml" carries the same config as a file.
+
+Replay rule: for each /furuta/tick in order, build Measurement(t, theta, theta_dot, phi) from the logged SI values;
+if ``reset`` is true call Controller.reset(phi) first; then call Controller.update if ``state == "balancing"``
+else Controller.hold. The logged ``u`` must come out bit-identical.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+TICK_TOPIC = "/furuta/tick"
+TIMING_TOPIC = "/furuta/timing"
+JOINT_STATES_TOPIC = "/furuta/joint_states"
+EVENTS_TOPIC = "/furuta/events"
+
+RIG_METADATA = "rig"
+RUN_METADATA = "run"
+DEVICE_METADATA = "device"
+RIG_ATTACHMENT = "rig.toml"
+
+_NUM = {"type": "number"}
+_INT = {"type": "integer"}
+
+TICK_FIELDS: dict[str, dict[str, Any]] = {
+    "seq": _INT,  # device sequence number of the SAMPLE
+    "t": _NUM,  # device time, s (unwrapped)
+    "theta_adc": _INT,
+    "theta_dot_adc": _INT,
+    "phi_count": _INT,
+    "status": _INT,  # SAMPLE status flags
+    "theta": _NUM,  # SI measurement, rad
+    "theta_dot": _NUM,  # rad/s
+    "phi": _NUM,  # rad
+    "phi_dot_hat": _NUM,  # observer estimate, rad/s
+    "u": _NUM,  # command sent (N m, or V for dc_motor rigs)
+    "u_lin": _NUM,  # L·x part
+    "u_comp": _NUM,  # friction compensation part
+    "saturated": {"type": "boolean"},
+    "state": {"type": "string", "enum": ["idle", "armed", "balancing", "tripped"]},
+    "reset": {"type": "boolean"},  # Controller.reset(phi) was called before this tick's update
+    "mode": {"type": "string"},  # compensation mode
+}
+
+TIMING_FIELDS: dict[str, dict[str, Any]] = {
+    "seq": _INT,
+    "period_us": _NUM,  # host time since the previous tick
+    "read_us": _NUM,
+    "update_us": _NUM,
+    "write_us": _NUM,
+    "latency_us": _NUM,  # sample (device time) → command written, estimated on the host clock
+    "lateness_us": _NUM,  # how late the tick started against its deadline
+    "overruns": _INT,  # cumulative
+    "seq_gaps": _INT,  # cumulative missing sequence numbers
+    "crc_errors": _INT,  # cumulative, from the stream decoder
+    "dropped_log_messages": _INT,  # cumulative, ticks the logger queue could not take
+}
+
+
+def _object_schema(title: str, fields: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    return {"title": title, "type": "object", "properties": fields, "required": list(fields)}
+
+
+TICK_SCHEMA = _object_schema("furuta_rt.Tick", TICK_FIELDS)
+TIMING_SCHEMA = _object_schema("furuta_rt.Timing", TIMING_FIELDS)
+
+# foxglove.JointStates / foxglove.Log shapes (JSON encoding), see https://docs.foxglove.dev/docs/visualization/message-schemas
+JOINT_STATES_SCHEMA: dict[str, Any] = {
+    "title": "foxglove.JointStates",
+    "type": "object",
+    "properties": {
+        "timestamp": {"type": "object", "properties": {"sec": _INT, "nsec": _INT}},
+        "joints": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {"name": {"type": "string"}, "position": _NUM, "velocity": _NUM, "effort": _NUM},
+            },
+        },
+    },
+}
+LOG_LEVELS = {"DEBUG": 1, "INFO": 2, "WARNING": 3, "ERROR": 4, "FATAL": 5}
+LOG_SCHEMA: dict[str, Any] = {
+    "title": "foxglove.Log",
+    "type": "object",
+    "properties": {
+        "timestamp": {"type": "object", "properties": {"sec": _INT, "nsec": _INT}},
+        "level": _INT,
+        "message": {"type": "string"},
+        "name": {"type": "string"},
+        "file": {"type": "string"},
+        "line": _INT,
+    },
+}
