@@ -24,7 +24,6 @@ MAX_FRAME_LEN = MAX_INNER_SIZE + 1
 """Longest valid COBS-encoded frame, without the delimiter (inner frames are < 254 bytes)."""
 
 CRC_INIT = 0xFFFF
-_DIRECT_MAX = 253  # inner frames up to this size never need a 0xFF COBS code
 
 
 class FrameError(ValueError):
@@ -99,7 +98,7 @@ def _cobs_decode(enc: bytes | bytearray) -> bytearray | None:
     n = len(enc)
     if n == 0 or 0 in enc:
         return None
-    if n <= _DIRECT_MAX + 1 and 0xFF not in enc:
+    if n <= 255:  # no group can follow a 0xFF group: every code byte after the first is a zero
         out = bytearray(enc[1:])  # data byte at enc[k] lands at out[k - 1]
         i = enc[0]
         while i < n:
@@ -159,6 +158,8 @@ def encode_command(seq: int, value_counts: int, flags: int) -> bytes:
 
 def try_decode_frame(frame: bytes | bytearray) -> Message | int:
     """Decode one frame (without delimiter); never raises. Returns the message or a FrameStatus."""
+    if len(frame) > MAX_FRAME_LEN:
+        return FrameStatus.LENGTH
     inner = _cobs_decode(frame)
     if inner is None:
         return FrameStatus.COBS

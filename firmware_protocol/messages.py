@@ -11,10 +11,11 @@ from __future__ import annotations
 import hashlib
 import math
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, fields
 from enum import IntEnum, IntFlag
 from operator import attrgetter
-from typing import ClassVar
+from typing import Any, ClassVar
 
 PROTOCOL_VERSION = 1
 """Bumped on any incompatible change of framing or semantics."""
@@ -198,7 +199,11 @@ class MsgSpec:
         self.body_struct = struct.Struct("<" + cls.FORMAT)
         self.body_size = self.body_struct.size
         self.inner_size = self.struct.size + 2  # + CRC-16
-        self.getter = attrgetter(*self.field_names)
+        if len(self.field_names) == 1:  # attrgetter of one name returns a scalar, not a tuple
+            name = self.field_names[0]
+            self.getter: Callable[[Any], tuple[Any, ...]] = lambda m: (getattr(m, name),)
+        else:
+            self.getter = attrgetter(*self.field_names)
 
 
 SPECS: dict[int, MsgSpec] = {int(c.TYPE): MsgSpec(c) for c in MESSAGE_CLASSES}
