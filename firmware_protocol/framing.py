@@ -75,11 +75,15 @@ def crc16(data: bytes | bytearray, crc: int = CRC_INIT) -> int:
 def cobs_encode(data: bytes | bytearray) -> bytes:
     """COBS-encode ``data`` (no delimiter). Output contains no zero byte."""
     out = bytearray()
-    for part in bytes(data).split(b"\x00"):
+    parts = bytes(data).split(b"\x00")
+    last = len(parts) - 1
+    for k, part in enumerate(parts):
         while len(part) >= 254:
             out.append(0xFF)
             out += part[:254]
             part = part[254:]
+            if not part and k == last:  # data ends with a full block: no final code byte
+                return bytes(out)
         out.append(len(part) + 1)
         out += part
     return bytes(out)

@@ -12,6 +12,7 @@ library): a header, then one JSON object per line in ``"vectors"``, each with a
   without the 0x00 delimiter).
 * ``invalid``: a ``frame`` (no delimiter) that must be rejected with ``error``
   (cobs, crc, length, unknown_type).
+* ``cobs``: ``raw`` bytes and their COBS ``encoded`` form (no delimiter).
 * ``stream``: a byte ``stream`` fed to a stream decoder; ``expect`` lists the frames
   (hex, re-encoded) it must return in order and ``counters`` the final counter values
   in ``COUNTER_ORDER``.
@@ -244,6 +245,31 @@ def _stream_entries(frames: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+def _cobs_entries() -> list[dict[str, Any]]:
+    """COBS examples (Cheshire & Baker / Wikipedia), incl. the 254-byte group edge cases."""
+    rng = random.Random(7)
+    cases = [
+        ("empty", b""),
+        ("zero", b"\x00"),
+        ("two_zeros", b"\x00\x00"),
+        ("zero_11_zero", b"\x00\x11\x00"),
+        ("mixed", bytes.fromhex("11220033")),
+        ("no_zero", bytes.fromhex("11223344")),
+        ("trailing_zeros", bytes.fromhex("11000000")),
+        ("block_254", bytes(range(1, 255))),
+        ("zero_then_block_254", bytes(range(0, 255))),
+        ("block_255", bytes(range(1, 256))),
+        ("block_254_then_zero", bytes(range(2, 256)) + b"\x00"),
+        ("block_253_zero_01", bytes(range(3, 256)) + b"\x00\x01"),
+        ("random_600", bytes(rng.choice((0, rng.randrange(1, 256))) for _ in range(600))),
+        ("random_nonzero_700", bytes(rng.randrange(1, 256) for _ in range(700))),
+    ]
+    return [
+        {"kind": "cobs", "name": name, "raw": raw.hex(), "encoded": cobs_encode(raw).hex()}
+        for name, raw in cases
+    ]
+
+
 def build() -> dict[str, Any]:
     """The golden-vector document (deterministic)."""
     frames = [_frame_entry(name, msg) for name, msg in messages()]
@@ -252,7 +278,7 @@ def build() -> dict[str, Any]:
         "protocol_version": PROTOCOL_VERSION,
         "schema_hash": SCHEMA_HASH,
         "counter_order": list(COUNTER_ORDER),
-        "vectors": frames + _invalid_entries(frames) + _stream_entries(frames),
+        "vectors": frames + _invalid_entries(frames) + _stream_entries(frames) + _cobs_entries(),
     }
 
 

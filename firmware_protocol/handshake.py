@@ -19,15 +19,12 @@ def make_hello(nonce: int | None = None) -> Hello:
 def verify_hello_ack(ack: HelloAck, hello: Hello) -> None:
     """Raise HandshakeError unless ``ack`` answers ``hello`` with the same version and schema."""
     if ack.protocol_version != hello.protocol_version:
-        raise HandshakeError(
-            f"protocol version mismatch: host {hello.protocol_version}, device {ack.protocol_version}"
-        )
+        host, dev = hello.protocol_version, ack.protocol_version
+        raise HandshakeError(f"protocol version mismatch: host {host}, device {dev}")
     if ack.schema_hash != hello.schema_hash:
         raise HandshakeError(
             f"schema hash mismatch: host {hello.schema_hash:#010x}, device {ack.schema_hash:#010x} "
             f"(firmware {ack.fw_major}.{ack.fw_minor}.{ack.fw_patch} built against other definitions)"
         )
     if ack.nonce != hello.nonce:
-        raise HandshakeError(
-            f"HELLO_ACK nonce {ack.nonce:#010x} does not answer HELLO nonce {hello.nonce:#010x}"
-        )
+        raise HandshakeError(f"HELLO_ACK nonce {ack.nonce:#010x} != HELLO nonce {hello.nonce:#010x}")

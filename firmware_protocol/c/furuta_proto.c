@@ -29,28 +29,29 @@ size_t fp_cobs_encode(const uint8_t *in, size_t len, uint8_t *out, size_t cap)
 {
     size_t code_pos = 0; /* where the current group's code byte goes */
     size_t o = 1;        /* next output position */
-    uint8_t code = 1;    /* 1 + bytes in the current group */
+    uint8_t code = 1;    /* 1 + data bytes in the current group */
     size_t i;
 
     if (cap < len + len / 254u + 1u) {
         return 0;
     }
     for (i = 0; i < len; i++) {
-        if (in[i] == 0u) {
-            out[code_pos] = code;
-            code_pos = o++;
-            code = 1;
-        } else {
+        if (in[i] != 0u) {
             out[o++] = in[i];
             code++;
-            if (code == 0xFFu) { /* full group: 254 data bytes, no implied zero */
-                out[code_pos] = code;
-                code_pos = o++;
-                code = 1;
+        }
+        if (in[i] == 0u || code == 0xFFu) { /* zero, or a full 254-byte group: close it */
+            out[code_pos] = code;
+            code = 1;
+            code_pos = o;
+            if (in[i] == 0u || i + 1u < len) {
+                o++; /* reserve the next code byte (not after a final full group) */
             }
         }
     }
-    out[code_pos] = code;
+    if (code_pos < o) {
+        out[code_pos] = code;
+    }
     return o;
 }
 

@@ -9,6 +9,7 @@
  *             COBS decode/encode against "inner"; the stream decoder returns it;
  *             every single-bit flip of the frame is rejected by the stream decoder.
  *   invalid : fp_decode_frame returns the expected error code.
+ *   cobs    : fp_cobs_encode(raw) == encoded and back, too-small buffers refused.
  *   stream  : the byte-by-byte stream decoder returns exactly the expected frames and
  *             ends with the expected counters.
  * Prints "ok frames=N invalid=N streams=N flips=N" and exits 0, or reports the first
@@ -252,7 +253,7 @@ static int msg_equal(const fp_msg_t *a, const fp_msg_t *b)
     }
 }
 
-static long n_frames, n_invalid, n_streams, n_flips, n_type_seen[256];
+static long n_frames, n_invalid, n_streams, n_cobs, n_flips, n_type_seen[256];
 
 /* Feed bytes to a fresh stream decoder; return the number of messages decoded. */
 static int stream_count(const uint8_t *data, size_t len, fp_msg_t *last)
@@ -336,6 +337,33 @@ static void check_frame(const char *name)
             }
             buf[i + 1] = (uint8_t)(buf[i + 1] ^ (1u << bit));
         }
+    }
+}
+
+static void check_cobs(const char *name)
+{
+    static uint8_t raw[BYTES_MAX], enc[BYTES_MAX], buf[BYTES_MAX];
+    long rlen = get_hex("raw", raw, sizeof raw);
+    long elen = get_hex("encoded", enc, sizeof enc);
+    size_t n;
+    if (rlen < 0 || elen <= 0) {
+        fail(name, "unparsable cobs vector");
+        return;
+    }
+    n_cobs++;
+    n = fp_cobs_encode(raw, (size_t)rlen, buf, sizeof buf);
+    if (n != (size_t)elen || memcmp(buf, enc, n) != 0) {
+        fail(name, "fp_cobs_encode differs");
+    }
+    if (fp_cobs_encode(raw, (size_t)rlen, buf, (size_t)rlen) != 0u) {
+        fail(name, "fp_cobs_encode ignored a too-small buffer");
+    }
+    if (fp_cobs_decode(enc, (size_t)elen, buf, sizeof buf, &n) != FP_OK || n != (size_t)rlen ||
+        memcmp(buf, raw, n) != 0) {
+        fail(name, "fp_cobs_decode differs");
+    }
+    if (rlen > 0 && fp_cobs_decode(enc, (size_t)elen, buf, (size_t)rlen - 1u, &n) != FP_ERR_BUFFER) {
+        fail(name, "fp_cobs_decode ignored a too-small buffer");
     }
 }
 
@@ -473,6 +501,8 @@ int main(int argc, char **argv)
             check_invalid(name);
         } else if (strcmp(kind, "stream") == 0) {
             check_stream(name);
+        } else if (strcmp(kind, "cobs") == 0) {
+            check_cobs(name);
         } else {
             fail(name, "unknown vector kind");
         }
@@ -488,7 +518,8 @@ int main(int argc, char **argv)
         fprintf(stderr, "%d failure(s)\n", failures);
         return 1;
     }
-    printf("ok frames=%ld invalid=%ld streams=%ld flips=%ld types=", n_frames, n_invalid, n_streams, n_flips);
+    printf("ok frames=%ld invalid=%ld streams=%ld cobs=%ld flips=%ld types=", n_frames, n_invalid, n_streams,
+           n_cobs, n_flips);
     {
         int t, first = 1;
         for (t = 0; t < 256; t++) {
