@@ -178,7 +178,7 @@ class CompensationConfig(_Section):
 
 
 class ObserverConfig(_Section):
-    accel_noise: Positive = Field(default=2.0, description="std of unmodelled arm acceleration, rad/s²")
+    accel_noise: Positive = Field(default=10.0, description="std of unmodelled arm acceleration, rad/s²")
     phi_noise: Positive | None = Field(default=None, description="std of φ measurement, rad (default: encoder LSB/√12)")
 
 
