@@ -1,7 +1,7 @@
 /*
  * test_vectors.c - host-side test driver for the C codec.
  *
- * Usage: test_vectors <golden.json>
+ * Usage: test_vectors <golden.json> [fuzz_bytes]
  *
  * Reads the line-oriented golden-vector file written by firmware_protocol/golden.py
  * (one JSON object per line, see there) and checks, for every vector:
@@ -12,6 +12,9 @@
  *   cobs    : fp_cobs_encode(raw) == encoded and back, too-small buffers refused.
  *   stream  : the byte-by-byte stream decoder returns exactly the expected frames and
  *             ends with the expected counters.
+ * With fuzz_bytes, also pushes a random stream of clean frames (from the file), garbage
+ * and corrupted frames: every clean frame must be recovered, the buffer stay capped
+ * (run it under -fsanitize=address,undefined).
  * Prints "ok frames=N invalid=N streams=N flips=N" and exits 0, or reports the first
  * failures and exits 1. Host-only code: uses stdio/stdlib, unlike the codec.
  */
@@ -255,6 +258,12 @@ static int msg_equal(const fp_msg_t *a, const fp_msg_t *b)
 
 static long n_frames, n_invalid, n_streams, n_cobs, n_flips, n_type_seen[256];
 
+#define FUZZ_POOL 64
+static fp_msg_t pool_msg[FUZZ_POOL];
+static uint8_t pool_wire[FUZZ_POOL][FP_MAX_WIRE_LEN];
+static size_t pool_len[FUZZ_POOL];
+static int pool_n;
+
 /* Feed bytes to a fresh stream decoder; return the number of messages decoded. */
 static int stream_count(const uint8_t *data, size_t len, fp_msg_t *last)
 {
@@ -320,6 +329,11 @@ static void check_frame(const char *name)
     }
     if (fp_crc16(inner, (size_t)ilen, FP_CRC_INIT) != 0u) {
         fail(name, "CRC residue of the inner frame is not zero");
+    }
+    if (pool_n < FUZZ_POOL) {
+        pool_msg[pool_n] = want;
+        pool_len[pool_n] = fp_encode(&want, pool_wire[pool_n], FP_MAX_WIRE_LEN);
+        pool_n++;
     }
     /* stream decoder, and every single-bit flip rejected: 0x00 | frame' | 0x00 */
     buf[0] = 0u;
@@ -453,6 +467,86 @@ static void check_stream(const char *name)
     (void)idx;
 }
 
+static uint32_t rng_state = 2463534242u;
+
+static uint32_t rnd(void) /* xorshift32 */
+{
+    rng_state ^= rng_state << 13;
+    rng_state ^= rng_state >> 17;
+    rng_state ^= rng_state << 5;
+    return rng_state;
+}
+
+/* Random stream of clean frames (0x00 | frame), garbage and corrupted frames pushed byte
+ * by byte. Every clean frame must come out at its delimiter; other outputs can only be
+ * CRC collisions and are counted. The buffer must never exceed its cap. */
+static void fuzz(long nbytes)
+{
+    fp_decoder_t d;
+    fp_msg_t m;
+    long pushed = 0, clean = 0, collisions = 0;
+    uint8_t tmp[FP_MAX_WIRE_LEN];
+    fp_decoder_init(&d);
+    if (pool_n == 0) {
+        fail("fuzz", "no frames to fuzz with");
+        return;
+    }
+    while (pushed < nbytes) {
+        uint32_t r = rnd() % 10u;
+        int k = (int)(rnd() % (uint32_t)pool_n);
+        size_t i, len;
+        if (r < 5u) { /* clean frame after a delimiter */
+            int got = fp_decoder_push(&d, 0u, &m);
+            collisions += got;
+            for (i = 0; i < pool_len[k]; i++) {
+                got = fp_decoder_push(&d, pool_wire[k][i], &m);
+                if (i + 1u < pool_len[k]) {
+                    collisions += got;
+                } else if (!got || !msg_equal(&m, &pool_msg[k])) {
+                    fail("fuzz", "clean frame not recovered");
+                }
+            }
+            pushed += (long)pool_len[k] + 1;
+            clean++;
+        } else if (r < 8u) { /* garbage */
+            len = 1u + rnd() % 80u;
+            for (i = 0; i < len; i++) {
+                collisions += fp_decoder_push(&d, (uint8_t)(rnd() & (r == 5u ? 0xFFu : 0x07u)), &m);
+            }
+            pushed += (long)len;
+        } else { /* corrupted frame: 1-3 bit flips, maybe truncated */
+            unsigned flips = 1u + rnd() % 3u;
+            len = pool_len[k];
+            memcpy(tmp, pool_wire[k], len);
+            while (flips--) {
+                i = rnd() % len;
+                tmp[i] = (uint8_t)(tmp[i] ^ (1u << (rnd() % 8u)));
+            }
+            if (memcmp(tmp, pool_wire[k], len) == 0) {
+                continue; /* flips cancelled out: not corrupted */
+            }
+            if (r == 9u) {
+                len = 1u + rnd() % (len - 2u); /* truncated: loses >= 1 content byte and the delimiter */
+            }
+            for (i = 0; i < len; i++) {
+                collisions += fp_decoder_push(&d, tmp[i], &m);
+            }
+            pushed += (long)len;
+        }
+        if (d.len > sizeof d.buf) {
+            fail("fuzz", "decoder buffer overflow");
+            return;
+        }
+    }
+    printf("fuzz bytes=%ld clean_frames=%ld collisions=%ld frames_ok=%lu crc_errors=%lu cobs_errors=%lu "
+           "length_errors=%lu overlong=%lu\n",
+           pushed, clean, collisions, (unsigned long)d.frames_ok, (unsigned long)d.crc_errors,
+           (unsigned long)d.cobs_errors, (unsigned long)d.length_errors, (unsigned long)d.overlong);
+    if (collisions > 10 + (long)(d.crc_errors / 16384u)) {
+        fail("fuzz", "implausibly many corrupted frames accepted");
+    }
+}
+
 int main(int argc, char **argv)
 {
     FILE *f;
@@ -460,8 +554,8 @@ int main(int argc, char **argv)
     int seen_version = 0, seen_hash = 0;
     static const uint8_t check[] = "123456789";
 
-    if (argc != 2) {
-        fprintf(stderr, "usage: %s golden.json\n", argv[0]);
+    if (argc != 2 && argc != 3) {
+        fprintf(stderr, "usage: %s golden.json [fuzz_bytes]\n", argv[0]);
         return 2;
     }
     if (fp_crc16(check, 9, FP_CRC_INIT) != 0x29B1u) {
@@ -513,6 +607,9 @@ int main(int argc, char **argv)
     }
     if (n_frames == 0) {
         fail("parser", "no frame vectors found");
+    }
+    if (argc == 3) {
+        fuzz(strtol(argv[2], NULL, 10));
     }
     if (failures) {
         fprintf(stderr, "%d failure(s)\n", failures);
