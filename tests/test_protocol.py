@@ -139,6 +139,20 @@ def test_handshake_accepts_match_and_refuses_mismatch() -> None:
 # ---- CRC and COBS ------------------------------------------------------------------------------
 
 
+def test_crc_polynomial_properties_claimed_in_the_spec() -> None:
+    """g = x^16+x^12+x^5+1 = (x+1)p(x), x of order 32767: HD 4 up to 32751 data bits, odd errors caught."""
+    g = 0x11021
+    assert bin(g).count("1") % 2 == 0, "even weight <=> divisible by x+1 <=> every odd-weight error detected"
+    x, order = 2, 1
+    while x != 1:
+        x <<= 1
+        if x & 0x10000:
+            x ^= g
+        order += 1
+    assert order == 32767
+    assert order - 16 > fp.MAX_FRAME_LEN * 8
+
+
 def test_crc16_is_ccitt_false() -> None:
     assert fp.crc16(b"123456789") == 0x29B1
     inner = bytes.fromhex(FRAMES[0]["inner"])
