@@ -47,6 +47,7 @@ from .messages import (
     compute_schema_hash,
     counts_to_actuator,
     schema_text,
+    wrap_delta,
 )
 from .stream import StreamDecoder
 
@@ -94,4 +95,5 @@ __all__ = [
     "schema_text",
     "try_decode_frame",
     "verify_hello_ack",
+    "wrap_delta",
 ]

@@ -84,7 +84,10 @@ class Hello:
 
 @dataclass(frozen=True, slots=True)
 class HelloAck:
-    """Device → host: identity, rate and channel scaling. Echoes the HELLO nonce."""
+    """Device → host: identity, rate and channel scaling. Echoes the HELLO nonce.
+
+    The float fields travel as IEEE binary32: a decoded value is the f32 rounding of what was sent.
+    """
 
     protocol_version: int
     schema_hash: int
@@ -244,6 +247,15 @@ def actuator_to_counts(u: float, full_scale: float) -> int:
         raise ValueError(f"actuator command must be finite, got {u!r}")
     counts = round(u / full_scale * COMMAND_FULL_SCALE)
     return COMMAND_FULL_SCALE if counts > COMMAND_FULL_SCALE else max(counts, -COMMAND_FULL_SCALE)
+
+
+def wrap_delta(new: int, old: int, bits: int = 32) -> int:
+    """Signed difference ``new - old`` of wrapping counters (seq, t_us, phi_count).
+
+    The result lies in (-2**(bits-1), 2**(bits-1)].
+    """
+    half = 1 << (bits - 1)
+    return ((new - old + half - 1) % (1 << bits)) - half + 1
 
 
 def counts_to_actuator(counts: int, full_scale: float) -> float:

@@ -99,7 +99,8 @@ def test_header_constants_match_python() -> None:
         assert d[f"FP_ST_{f.name}"] == f.value
     for f in fp.CommandFlags:
         assert d[f"FP_CMD_{f.name}"] == f.value
-    assert d["FP_ACT_TORQUE_NM"] == fp.ActuatorKind.TORQUE_NM and d["FP_ACT_VOLTAGE_V"] == fp.ActuatorKind.VOLTAGE_V
+    assert d["FP_ACT_TORQUE_NM"] == fp.ActuatorKind.TORQUE_NM
+    assert d["FP_ACT_VOLTAGE_V"] == fp.ActuatorKind.VOLTAGE_V
     # error codes follow FrameStatus, negated
     for s in fp.FrameStatus:
         assert d[f"FP_ERR_{s.name}"] == -s.value
@@ -173,7 +174,11 @@ def test_driver_detects_disagreement(driver: Path, tmp_path: Path) -> None:
     cases = [
         (f'"frame": "{sample["frame"]}"', f'"frame": "{bad_frame}"', "fp_encode differs"),
         ('"values": [41, 41000, 2048', '"values": [41, 41001, 2048', "differs"),
-        (f'"counters": {json.dumps(stream["counters"])}', f'"counters": {json.dumps([0] * 8)}', "counters differ"),
+        (
+            f'"counters": {json.dumps(stream["counters"])}',
+            f'"counters": {json.dumps([0] * 8)}',
+            "counters differ",
+        ),
         (f'"schema_hash": {fp.SCHEMA_HASH},', f'"schema_hash": {fp.SCHEMA_HASH ^ 1},', "FP_SCHEMA_HASH"),
         ('"error": "unknown_type"', '"error": "crc"', "wrong error code"),
     ]

@@ -24,7 +24,12 @@ INVALID = [v for v in DOC["vectors"] if v["kind"] == "invalid"]
 STREAMS = [v for v in DOC["vectors"] if v["kind"] == "stream"]
 COBS = [v for v in DOC["vectors"] if v["kind"] == "cobs"]
 CLASS_BY_NAME = {c.TYPE.name: c for c in fp.MESSAGE_CLASSES}
-ERRORS = {"cobs": fp.CobsError, "crc": fp.CrcError, "length": fp.LengthError, "unknown_type": fp.UnknownTypeError}
+ERRORS = {
+    "cobs": fp.CobsError,
+    "crc": fp.CrcError,
+    "length": fp.LengthError,
+    "unknown_type": fp.UnknownTypeError,
+}
 
 
 # ---- strategies ---------------------------------------------------------------------------
@@ -190,7 +195,8 @@ def test_cobs_round_trip(data: bytes) -> None:
 
 
 def test_golden_file_is_up_to_date() -> None:
-    assert golden.GOLDEN_PATH.read_text() == golden.dumps(golden.build()), "run python -m firmware_protocol.golden"
+    stale = "stale: run python -m firmware_protocol.golden"
+    assert golden.GOLDEN_PATH.read_text() == golden.dumps(golden.build()), stale
     assert DOC["schema_hash"] == fp.SCHEMA_HASH and DOC["protocol_version"] == fp.PROTOCOL_VERSION
     assert {v["type"] for v in FRAMES} == set(CLASS_BY_NAME)
     assert len(INVALID) >= 10 and len(STREAMS) >= 5 and len(COBS) >= 10
@@ -281,6 +287,13 @@ def test_actuator_scaling() -> None:
     for bad_fs in (0.0, -1.0, math.nan):
         with pytest.raises(ValueError):
             fp.actuator_to_counts(0.1, bad_fs)
+
+
+def test_wrap_delta() -> None:
+    assert fp.wrap_delta(5, 3) == 2 and fp.wrap_delta(3, 5) == -2
+    assert fp.wrap_delta(1, 0xFFFFFFFF) == 2 and fp.wrap_delta(0xFFFFFFFF, 1) == -2
+    assert fp.wrap_delta(0x80000000, 0) == 0x80000000 and fp.wrap_delta(0x80000001, 0) == -0x7FFFFFFF
+    assert fp.wrap_delta(0, 65535, bits=16) == 1
 
 
 # ---- corruption: bit flips -----------------------------------------------------------------------
