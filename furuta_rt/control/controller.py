@@ -142,14 +142,16 @@ class Controller:
         obs.predict(m.theta, applied)
         return ControlOutput(u=u, u_lin=u_lin, u_comp=u_comp, phi_dot_hat=phi_dot, saturated=saturated)
 
-    def hold(self, m: Measurement) -> None:
-        """Track the measurement without commanding (idle/tripped): keeps the observer converged."""
+    def hold(self, m: Measurement) -> float:
+        """Track the measurement without commanding (idle/tripped): keeps the observer converged.
+        Returns the observer's φ̇ estimate (as ``update``'s ``phi_dot_hat``)."""
         if not self._started:
             self.reset(m.phi)
-        self.observer.correct(m.phi)
+        phi_dot = self.observer.correct(m.phi)
         if self._delay:
             self._pending.append(0.0)
             applied = self._pending.popleft()
         else:
             applied = 0.0
         self.observer.predict(m.theta, applied)
+        return phi_dot
