@@ -1,0 +1,216 @@
+"""Writing the MCAP log layout of furuta_rt.io.log_schema.
+
+``LogWriter`` writes the channels, metadata and attachment of the layout; metadata go first, so a log
+cut short by a killed run still names its rig and run. ``write_recording_mcap`` turns a Recording (a
+CSV, a simulation) into such a log: what it does not know (raw counts, θ̇ when absent, φ̂̇) it
+computes and says so in the "run" metadata (``derived``).
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.writer import CompressionType, Writer
+
+from furuta_rt.config import CompMode, RigConfig
+from furuta_rt.errors import UserError
+from furuta_rt.io import log_schema as ls
+from furuta_rt.io.rig_toml import rig_to_toml
+from furuta_rt.model.rig import calibration_from_config
+from furuta_rt.recording import Recording
+
+PROFILE = "furuta_rt"
+
+
+def package_version() -> str:
+    try:
+        return importlib.metadata.version("furuta-rt")
+    except importlib.metadata.PackageNotFoundError:  # pragma: no cover - running from a source tree
+        return "unknown"
+
+
+def _dumps(obj: Any) -> bytes:
+    return json.dumps(obj, separators=(",", ":")).encode()
+
+
+def rig_metadata(rig: RigConfig) -> dict[str, str]:
+    """The "rig" metadata record: name, TOML text and JSON of the config."""
+    return {"name": rig.name, "toml": rig_to_toml(rig), "json": rig.model_dump_json()}
+
+
+def run_metadata(
+    mode: str, gains: list[float] | tuple[float, ...] | np.ndarray, rate_hz: float, **extra: str
+) -> dict[str, str]:
+    """The "run" metadata record (all values are strings, as MCAP metadata requires)."""
+    out = {
+        "mode": mode,
+        "gains": json.dumps([float(g) for g in gains]),
+        "rate_hz": repr(float(rate_hz)),
+        "version": package_version(),
+    }
+    out.update({k: str(v) for k, v in extra.items()})
+    return out
+
+
+def _ns(seconds: float) -> int:
+    return max(0, round(seconds * 1e9))
+
+
+class LogWriter:
+    """Streaming writer of one log: ``tick``/``timing``/``event`` per record, ``close`` writes the summary."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        rig: RigConfig,
+        run: Mapping[str, str],
+        device: Mapping[str, str] | None = None,
+        *,
+        chunk_size: int = 256 * 1024,
+        compression: CompressionType = CompressionType.ZSTD,
+    ) -> None:
+        self.path = Path(path)
+        try:
+            self._fh = self.path.open("wb")
+        except OSError as err:
+            raise UserError(f"cannot write {self.path}: {err.strerror}") from None
+        w = Writer(self._fh, chunk_size=chunk_size, compression=compression)
+        w.start(profile=PROFILE, library=f"furuta_rt {package_version()}")
+        w.add_metadata(ls.RIG_METADATA, rig_metadata(rig))
+        w.add_metadata(ls.RUN_METADATA, dict(run))
+        w.add_metadata(ls.DEVICE_METADATA, dict(device or {}))
+        toml = rig_to_toml(rig).encode()
+        w.add_attachment(create_time=0, log_time=0, name=ls.RIG_ATTACHMENT, media_type="application/toml", data=toml)
+
+        def channel(topic: str, schema: dict[str, Any]) -> int:
+            sid = w.register_schema(schema["title"], "jsonschema", _dumps(schema))
+            return w.register_channel(topic, "json", sid)
+
+        self._tick = channel(ls.TICK_TOPIC, ls.TICK_SCHEMA)
+        self._timing = channel(ls.TIMING_TOPIC, ls.TIMING_SCHEMA)
+        self._joints = channel(ls.JOINT_STATES_TOPIC, ls.JOINT_STATES_SCHEMA)
+        self._events = channel(ls.EVENTS_TOPIC, ls.LOG_SCHEMA)
+        self._writer = w
+        self._closed = False
+
+    def tick(self, log_time: int, publish_time: int, fields: Mapping[str, Any]) -> None:
+        """One /furuta/tick message (``fields``: every key of TICK_FIELDS) and its /furuta/joint_states."""
+        w = self._writer
+        seq = int(fields["seq"]) & 0xFFFFFFFF
+        w.add_message(self._tick, log_time, _dumps(fields), publish_time, seq)
+        stamp = {"sec": publish_time // 1_000_000_000, "nsec": publish_time % 1_000_000_000}
+        joints = {
+            "timestamp": stamp,
+            "joints": [
+                {"name": "theta", "position": fields["theta"], "velocity": fields["theta_dot"], "effort": 0.0},
+                {"name": "phi", "position": fields["phi"], "velocity": fields["phi_dot_hat"], "effort": fields["u"]},
+            ],
+        }
+        w.add_message(self._joints, log_time, _dumps(joints), publish_time, seq)
+
+    def timing(self, log_time: int, fields: Mapping[str, Any]) -> None:
+        self._writer.add_message(self._timing, log_time, _dumps(fields), log_time, int(fields["seq"]) & 0xFFFFFFFF)
+
+    def event(self, log_time: int, level: str, message: str, name: str = "furuta_rt") -> None:
+        body = {
+            "timestamp": {"sec": log_time // 1_000_000_000, "nsec": log_time % 1_000_000_000},
+            "level": ls.LOG_LEVELS[level],
+            "message": message,
+            "name": name,
+            "file": "",
+            "line": 0,
+        }
+        self._writer.add_message(self._events, log_time, _dumps(body), log_time)
+
+    def flush(self) -> None:
+        """End the chunk in progress and push it to the file (what a kill would otherwise lose)."""
+        self._writer.flush()
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._writer.finish()
+            self._fh.close()
+
+    def __enter__(self) -> LogWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _column(rec: Recording, name: str) -> np.ndarray | None:
+    v = rec.extra.get(name)
+    return None if v is None else np.asarray(v)
+
+
+def write_recording_mcap(
+    rec: Recording,
+    path: str | Path,
+    rig: RigConfig,
+    *,
+    mode: CompMode | None = None,
+    gains: list[float] | np.ndarray | None = None,
+    source: str | None = None,
+) -> Path:
+    """Write ``rec`` as a log of ``rig``: every row a tick in state "balancing" (reset on the first),
+    so ``replay`` runs the controller over all of it. u_lin, u_comp, phi_dot_hat come from
+    ``rec.extra`` when there; otherwise u_lin = u, u_comp = 0 and φ̂̇ = dφ/dt (central differences);
+    a missing θ̇ is dθ/dt. Raw counts are the SI values through the rig's calibration (clipped)."""
+    from furuta_rt.control.controller import design_gains
+
+    n = len(rec)
+    if n < 2:
+        raise UserError(f"recording has {n} rows; a log needs at least two")
+    t = np.asarray(rec.t, dtype=float)
+    derived: list[str] = []
+    theta_dot = rec.theta_dot
+    if theta_dot is None:
+        theta_dot = np.gradient(rec.theta, t)
+        derived.append("theta_dot")
+    phi_dot_hat = _column(rec, "phi_dot_hat")
+    if phi_dot_hat is None:
+        phi_dot_hat = np.gradient(rec.phi, t)
+        derived.append("phi_dot_hat")
+    u = np.asarray(rec.u, dtype=float)
+    u_lin = _column(rec, "u_lin")
+    u_comp = _column(rec, "u_comp")
+    if u_lin is None or u_comp is None:
+        u_lin, u_comp = u, np.zeros(n)
+    saturated = _column(rec, "saturated")
+    if saturated is None:
+        saturated = np.abs(u) >= rig.actuator.limit
+    cal = calibration_from_config(rig)
+    mode = mode or rig.compensation.mode
+    gains_list = [float(g) for g in (design_gains(rig) if gains is None else gains)]
+    run = run_metadata(
+        mode, gains_list, rig.control.rate_hz, source=source or str(rec.meta.get("source", "recording")),
+        converted="true", derived=",".join(derived),
+    )
+    t0 = float(t[0])
+    offset = -t0 if t0 < 0 else 0.0  # MCAP times are unsigned
+    with LogWriter(path, rig, run, {"calibration": "computed from the rig config"}) as w:
+        cols = (t, rec.theta, theta_dot, rec.phi, phi_dot_hat, u, u_lin, u_comp, saturated)
+        prev = t0
+        for k, (tk, th, thd, ph, phd, uk, ul, uc, sat) in enumerate(zip(*(c.tolist() for c in cols), strict=True)):
+            a, b, c, _ = cal.to_counts(th, thd, ph)
+            ns = _ns(tk + offset)
+            w.tick(ns, ns, {
+                "seq": k, "t": tk, "theta_adc": a, "theta_dot_adc": b, "phi_count": c, "status": 0,
+                "theta": th, "theta_dot": thd, "phi": ph, "phi_dot_hat": phd,
+                "u": uk, "u_lin": ul, "u_comp": uc, "saturated": bool(sat),
+                "state": "balancing", "reset": k == 0, "mode": mode,
+            })
+            w.timing(ns, {
+                "seq": k, "period_us": (tk - prev) * 1e6, "read_us": 0.0, "update_us": 0.0, "write_us": 0.0,
+                "latency_us": 0.0, "lateness_us": 0.0, "overruns": 0, "seq_gaps": 0, "crc_errors": 0,
+                "dropped_log_messages": 0,
+            })
+            prev = tk
+        w.event(_ns(t0 + offset), "INFO", f"converted from {run['source']}")
+    return Path(path)

@@ -1,0 +1,445 @@
+"""Reading furuta-rt MCAP logs (layout: furuta_rt.io.log_schema) into numpy columns.
+
+One code path reads complete logs and logs left by a killed run: the file is read front to back with
+mcap's StreamReader (chunks kept whole); a chunk is used only if it is complete and its CRC checks, and
+reading stops quietly at a torn end — what came before is kept, with a warning saying how much. Chunk
+contents are walked here (not by mcap's per-message objects) and only the wanted channels' payloads are
+sliced out and JSON-decoded in batches: that is what makes replaying a long log fast.
+"""
+
+from __future__ import annotations
+
+import gc
+import json
+import struct
+import tomllib
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from io import BytesIO
+from operator import itemgetter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Metadata, Schema
+from mcap.stream_reader import StreamReader, get_chunk_data_stream
+
+from furuta_rt.config import RigConfig, rig_from_dict
+from furuta_rt.errors import UserError
+from furuta_rt.io import log_schema as ls
+from furuta_rt.recording import Recording
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+_MESSAGE, _CHANNEL, _SCHEMA = 0x05, 0x04, 0x03
+_RECORD = struct.Struct("<BQ")  # opcode, length
+_MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, length, channel id, sequence, log_time, publish_time
+_HEAD = _MESSAGE_HEAD.size
+# Errors mcap raises when the bytes end or are not MCAP (short reads surface as struct.error).
+_READ_ERRORS = (McapError, struct.error, ValueError, EOFError, MemoryError)
+
+
+def is_mcap(path: str | Path) -> bool:
+    """True if the file starts with the MCAP magic."""
+    try:
+        with Path(path).open("rb") as fh:
+            return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+    except OSError:
+        return False
+
+
+try:  # optional: 3-5x faster JSON decoding (exact floats too); not a dependency
+    import orjson as _orjson  # type: ignore[import-not-found]
+except ImportError:  # pragma: no cover - depends on the environment
+    _orjson = None
+
+_scan_once = json.decoder.JSONDecoder().scan_once  # the C scanner behind json.loads, without its wrappers
+
+
+def _loads_all(payloads: list[bytes]) -> list[Any]:
+    """json.loads of every payload (ValueError if one is not JSON)."""
+    if _orjson is not None:
+        try:
+            return list(map(_orjson.loads, payloads))
+        except _orjson.JSONDecodeError as err:
+            raise ValueError(str(err)) from None
+    out = []
+    append = out.append
+    try:
+        for text in map(bytes.decode, payloads):
+            obj, end = _scan_once(text, 0)
+            if end != len(text):
+                raise ValueError("extra data after the JSON value")
+            append(obj)
+    except (StopIteration, UnicodeDecodeError):
+        raise ValueError("not JSON") from None
+    return out
+
+
+class _Columns:
+    """Collects one channel's JSON payloads chunk by chunk and turns them into numpy columns."""
+
+    def __init__(self, fields: dict[str, dict[str, Any]] | None) -> None:
+        self.fields = fields
+        self.pending: list[bytes] = []
+        self.times: list[int] = []
+        self.parts: dict[str, list[np.ndarray]] = {k: [] for k in fields or {}}
+        self.time_parts: list[np.ndarray] = []
+        self.rows: list[dict[str, Any]] = []  # fields is None: keep decoded dicts (events)
+        self.bad = 0
+        self.missing: set[str] = set()
+
+    def _decode(self) -> tuple[list[Any], list[int]]:
+        try:
+            return _loads_all(self.pending), self.times
+        except ValueError:
+            rows, times = [], []
+            for p, t in zip(self.pending, self.times, strict=True):
+                try:
+                    rows.append(json.loads(p))
+                    times.append(t)
+                except ValueError:
+                    self.bad += 1
+            return rows, times
+
+    def flush(self) -> None:
+        if not self.pending:
+            return
+        rows, times = self._decode()
+        self.pending, self.times = [], []
+        if self.fields is None:
+            for r, t in zip(rows, times, strict=True):
+                if isinstance(r, dict):
+                    self.rows.append({"log_time": t, **r})
+            return
+        names = list(self.fields)
+        try:
+            cols = list(zip(*map(itemgetter(*names), rows), strict=True)) if rows else [() for _ in names]
+        except (KeyError, TypeError):
+            cols = self._tolerant(rows, names)
+        for name, col in zip(names, cols, strict=True):
+            self.parts[name].append(_to_array(col, self.fields[name]))
+        self.time_parts.append(np.asarray(times, dtype=np.int64))
+
+    def _tolerant(self, rows: list[Any], names: list[str]) -> list[tuple[Any, ...]]:
+        dicts = [r if isinstance(r, dict) else {} for r in rows]
+        self.bad += sum(1 for r in rows if not isinstance(r, dict))
+        for name in names:
+            if any(name not in r for r in dicts):
+                self.missing.add(name)
+        return [tuple(r.get(name) for r in dicts) for name in names]
+
+    def result(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        self.flush()
+        cols = {k: np.concatenate(v) if v else _to_array((), self.fields[k]) for k, v in self.parts.items()}  # type: ignore[index]
+        times = np.concatenate(self.time_parts) if self.time_parts else np.zeros(0, dtype=np.int64)
+        return cols, times
+
+
+def _to_array(col: Iterable[Any], spec: dict[str, Any]) -> np.ndarray:
+    kind = spec.get("type")
+    values = tuple(col)
+    try:
+        if kind == "number":
+            return np.array(values, dtype=float)
+        if kind == "integer":
+            return np.array(values, dtype=np.int64)
+        if kind == "boolean":
+            return np.array(values, dtype=bool)
+        return np.array(values, dtype=str)
+    except (TypeError, ValueError):  # None for a missing field, or a wrong type
+        if kind == "number":
+            return np.array([v if isinstance(v, int | float) else np.nan for v in values], dtype=float)
+        if kind == "integer":
+            return np.array([v if isinstance(v, int) else -1 for v in values], dtype=np.int64)
+        if kind == "boolean":
+            return np.array([bool(v) for v in values], dtype=bool)
+        return np.array(["" if v is None else str(v) for v in values], dtype=str)
+
+
+@dataclass
+class _Scan:
+    size: int
+    want: dict[str, _Columns]
+    channels: dict[int, Channel] = field(default_factory=dict)
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    attachments: dict[str, bytes] = field(default_factory=dict)
+    by_id: dict[int, _Columns] = field(default_factory=dict)
+    chunks: int = 0
+    bad_chunks: int = 0
+    unknown_channel_messages: int = 0
+    footer: bool = False
+    data_end: bool = False
+    good_end: int = 0  # byte offset after the last record read whole
+    problem: str | None = None
+
+    def add_channel(self, ch: Channel) -> None:
+        self.channels[ch.id] = ch
+        col = self.want.get(ch.topic)
+        if col is not None:
+            self.by_id[ch.id] = col
+
+    def walk_chunk(self, data: bytes) -> None:
+        """Slice the wanted channels' payloads out of one chunk's records."""
+        pos, n = 0, len(data)
+        by_id = self.by_id
+        unpack_message = _MESSAGE_HEAD.unpack_from
+        unpack_record = _RECORD.unpack_from
+        while pos < n:
+            if data[pos] == _MESSAGE:
+                _, length, ch, _, log_time, _ = unpack_message(data, pos)
+                col = by_id.get(ch)
+                if col is not None:
+                    col.pending.append(data[pos + _HEAD : pos + 9 + length])
+                    col.times.append(log_time)
+                elif ch not in self.channels:
+                    self.unknown_channel_messages += 1
+            else:
+                op, length = unpack_record(data, pos)
+                if op in (_CHANNEL, _SCHEMA):
+                    stream = ReadDataStream(BytesIO(data[pos + 9 : pos + 9 + length]))
+                    if op == _CHANNEL:
+                        self.add_channel(Channel.read(stream))
+                    else:
+                        schema = Schema.read(stream)
+                        self.schemas[schema.id] = schema
+            pos += 9 + length
+        for col in self.want.values():
+            col.flush()
+
+
+class _LogStreamReader(StreamReader):
+    """mcap's StreamReader, skipping MessageIndex records (the reader walks chunks itself; parsing
+    their entries one by one would cost as much as reading the messages)."""
+
+    def _read_record(self, opcode: int, length: int) -> Any:
+        if opcode == Opcode.MESSAGE_INDEX:
+            self._stream.read(length)
+            return None
+        return super()._read_record(opcode, length)
+
+
+def _scan(path: Path, want: dict[str, _Columns], progress: Callable[[int, int], None] | None = None) -> _Scan:
+    try:
+        size = path.stat().st_size
+        fh = path.open("rb")
+    except FileNotFoundError:
+        raise UserError(f"log {path} does not exist") from None
+    except OSError as err:
+        raise UserError(f"cannot read {path}: {err.strerror}") from None
+    scan = _Scan(size=size, want=want)
+    with fh:
+        head = fh.read(len(MCAP_MAGIC))
+        if head != MCAP_MAGIC:
+            what = "is empty" if not head else "is not an MCAP file (no MCAP magic at the start)"
+            raise UserError(f"{path} {what}; give a log written by furuta-rt (or convert a CSV with `furuta-rt convert`)")
+        fh.seek(0)
+        records = _LogStreamReader(fh, emit_chunks=True, record_size_limit=max(size, 1)).records
+        was_enabled = gc.isenabled()
+        gc.disable()  # decoding makes many small dicts; the cyclic collector only slows it down
+        try:
+            while True:
+                try:
+                    rec = next(records)
+                except StopIteration:
+                    break
+                except _READ_ERRORS as err:
+                    if not scan.footer:
+                        scan.problem = f"{type(err).__name__} {err}".strip()
+                    break
+                _use_record(scan, rec, path)
+                scan.good_end = fh.tell()
+                if progress is not None and isinstance(rec, Chunk):
+                    progress(scan.good_end, size)
+        finally:
+            if was_enabled:
+                gc.enable()
+    return scan
+
+
+def _use_record(scan: _Scan, rec: Any, path: Path) -> None:
+    if isinstance(rec, Chunk):
+        try:
+            stream, length = get_chunk_data_stream(rec, validate_crc=True)
+            data = stream.read(length)
+            if len(data) != rec.uncompressed_size:
+                raise ValueError("size mismatch")
+            scan.walk_chunk(data)
+            scan.chunks += 1
+        except Exception:
+            for col in scan.want.values():
+                col.pending.clear()
+                col.times.clear()
+            scan.bad_chunks += 1
+    elif isinstance(rec, Channel):
+        scan.add_channel(rec)
+    elif isinstance(rec, Schema):
+        scan.schemas[rec.id] = rec
+    elif isinstance(rec, Metadata):
+        scan.metadata[rec.name] = dict(rec.metadata)
+    elif isinstance(rec, Attachment):
+        scan.attachments[rec.name] = rec.data
+    elif isinstance(rec, DataEnd):
+        scan.data_end = True
+    elif isinstance(rec, Footer):
+        scan.footer = True
+
+
+@dataclass
+class LogData:
+    """A furuta-rt log: /furuta/tick columns (TICK_FIELDS), timing columns, events and metadata."""
+
+    path: Path
+    ticks: dict[str, np.ndarray]
+    tick_log_time: np.ndarray  # host clock, ns
+    timing: dict[str, np.ndarray]
+    events: list[dict[str, Any]]
+    metadata: dict[str, dict[str, str]]
+    attachments: dict[str, bytes]
+    rig: RigConfig | None
+    run: dict[str, Any]  # the "run" metadata, with gains as a list and rate_hz as a float
+    recovered: bool  # the file was not closed (no summary): read up to its last complete chunk
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def n_ticks(self) -> int:
+        return len(self.ticks["t"])
+
+    @property
+    def duration(self) -> float:
+        t = self.ticks["t"]
+        return float(t[-1] - t[0]) if len(t) > 1 else 0.0
+
+    @property
+    def mode(self) -> str | None:
+        """The compensation mode the run used (run metadata, else the first balancing tick's)."""
+        if "mode" in self.run:
+            return str(self.run["mode"])
+        balancing = np.flatnonzero(self.ticks["state"] == "balancing")
+        return str(self.ticks["mode"][balancing[0]]) if len(balancing) else None
+
+    @property
+    def gains(self) -> list[float] | None:
+        return self.run.get("gains")
+
+    @property
+    def converted(self) -> bool:
+        """The log was converted from a recording (its u is not furuta-rt's controller output)."""
+        return self.run.get("converted") == "true"
+
+
+def _parse_run(meta: dict[str, str], warnings: list[str], path: Path) -> dict[str, Any]:
+    run: dict[str, Any] = dict(meta)
+    if "gains" in meta:
+        try:
+            gains = json.loads(meta["gains"])
+            if not (isinstance(gains, list) and len(gains) == 4):
+                raise ValueError
+            run["gains"] = [float(g) for g in gains]
+        except (ValueError, TypeError):
+            warnings.append(f"{path}: run metadata 'gains' is not a list of four numbers ({meta['gains']!r}); ignored")
+            del run["gains"]
+    if "rate_hz" in meta:
+        try:
+            run["rate_hz"] = float(meta["rate_hz"])
+        except ValueError:
+            del run["rate_hz"]
+    return run
+
+
+def _parse_rig(scan: _Scan, path: Path, warnings: list[str]) -> RigConfig | None:
+    meta = scan.metadata.get(ls.RIG_METADATA, {})
+    attempts: list[tuple[str, Callable[[], dict]]] = []
+    if "json" in meta:
+        attempts.append(("rig metadata (json)", lambda: json.loads(meta["json"])))
+    if "toml" in meta:
+        attempts.append(("rig metadata (toml)", lambda: tomllib.loads(meta["toml"])))
+    if ls.RIG_ATTACHMENT in scan.attachments:
+        attempts.append((f"attachment {ls.RIG_ATTACHMENT}", lambda: tomllib.loads(scan.attachments[ls.RIG_ATTACHMENT].decode())))
+    problems = []
+    for source, load in attempts:
+        try:
+            return rig_from_dict(load(), f"{path}: {source}")
+        except UserError as err:
+            problems.append(str(err))
+        except (ValueError, UnicodeDecodeError) as err:
+            problems.append(f"{path}: {source} does not parse: {err}")
+    if problems:
+        warnings.append(problems[0] + "; give the rig with --config")
+    else:
+        warnings.append(f"{path}: the log names no rig config; give it with --config")
+    return None
+
+
+def _recovery_warning(scan: _Scan, path: Path, ticks: dict[str, np.ndarray]) -> str:
+    n = len(ticks["t"])
+    span = f", t = {ticks['t'][0]:.3f} … {ticks['t'][-1]:.3f} s" if n else ""
+    lost = scan.size - scan.good_end
+    why = "its summary is missing" if scan.data_end else "it has no summary (the run was killed?)"
+    tail = f"; the last {lost} bytes (an incomplete record) were dropped" if lost > 0 else ""
+    return (
+        f"{path} was not closed properly, {why}: recovered {n} ticks from {scan.chunks} complete chunks"
+        f" ({(ticks['t'][-1] - ticks['t'][0]) if n > 1 else 0.0:.2f} s{span}){tail};"
+        f" run `furuta-rt repair {path}` to rewrite it with a summary"
+    )
+
+
+def read_log(
+    path: str | Path, *, timing: bool = True, events: bool = True, progress: Callable[[int, int], None] | None = None
+) -> LogData:
+    """Read a log. Never raises on a torn or damaged log (the warnings say what was recovered); a file
+    that is not MCAP at all, or missing, is a UserError. ``progress(bytes_read, file_size)`` per chunk."""
+    p = Path(path)
+    want = {ls.TICK_TOPIC: _Columns(ls.TICK_FIELDS)}
+    if timing:
+        want[ls.TIMING_TOPIC] = _Columns(ls.TIMING_FIELDS)
+    if events:
+        want[ls.EVENTS_TOPIC] = _Columns(None)
+    scan = _scan(p, want, progress)
+    warnings: list[str] = []
+    ticks, tick_times = want[ls.TICK_TOPIC].result()
+    timing_cols = want[ls.TIMING_TOPIC].result()[0] if timing else {}
+    recovered = not scan.footer
+    if recovered:
+        warnings.append(_recovery_warning(scan, p, ticks))
+    if scan.problem and scan.footer:
+        warnings.append(f"{p}: {scan.problem}")
+    if scan.bad_chunks:
+        warnings.append(f"{p}: {scan.bad_chunks} damaged chunk(s) skipped (CRC or decompression failed)")
+    for topic, col in want.items():
+        if col.bad:
+            warnings.append(f"{p}: {col.bad} message(s) on {topic} are not JSON objects; skipped")
+        if col.missing:
+            warnings.append(f"{p}: messages on {topic} lack field(s) {', '.join(sorted(col.missing))}")
+    if scan.unknown_channel_messages:
+        warnings.append(f"{p}: {scan.unknown_channel_messages} message(s) on unknown channels skipped")
+    if not any(ch.topic == ls.TICK_TOPIC for ch in scan.channels.values()) and scan.chunks:
+        warnings.append(f"{p}: no {ls.TICK_TOPIC} channel; is this a furuta-rt log?")
+    run = _parse_run(scan.metadata.get(ls.RUN_METADATA, {}), warnings, p)
+    rig = _parse_rig(scan, p, warnings)
+    return LogData(
+        path=p, ticks=ticks, tick_log_time=tick_times, timing=timing_cols,
+        events=want[ls.EVENTS_TOPIC].rows if events else [], metadata=scan.metadata,
+        attachments=scan.attachments, rig=rig, run=run, recovered=recovered, warnings=warnings,
+    )
+
+
+def log_to_recording(log: LogData) -> Recording:
+    """The log's ticks as a Recording (θ̇ left out when the log derived it); the controller's side in ``extra``."""
+    tk = log.ticks
+    derived = set(str(log.run.get("derived", "")).split(","))
+    extra = {k: tk[k] for k in ("phi_dot_hat", "u_lin", "u_comp") if k not in derived}
+    extra["saturated"] = tk["saturated"].astype(float)
+    extra["balancing"] = (tk["state"] == "balancing").astype(float)
+    meta: dict[str, object] = {"source": str(log.path), "format": "mcap", "recovered": log.recovered}
+    if log.rig is not None:
+        meta["rig"] = log.rig.name
+    if log.mode is not None:
+        meta["mode"] = log.mode
+    return Recording(
+        t=tk["t"], theta=tk["theta"], phi=tk["phi"], u=tk["u"],
+        theta_dot=None if "theta_dot" in derived else tk["theta_dot"], extra=extra, meta=meta,
+    )

@@ -1,0 +1,52 @@
+"""One entry point for recordings of any format: our CSV, another rig's CSV through a mapping, or a log.
+
+``read_recording(path)`` tells MCAP from CSV by the file's first bytes; ``write_recording`` by the
+output's extension (.mcap or .csv).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from furuta_rt.config import RigConfig, load_rig
+from furuta_rt.errors import UserError
+from furuta_rt.io.csv import read_csv, write_csv
+from furuta_rt.io.mapping import CsvMapping, load_mapping, read_mapped_csv
+from furuta_rt.io.mcap_log import write_recording_mcap
+from furuta_rt.io.mcap_read import is_mcap, log_to_recording, read_log
+from furuta_rt.recording import Recording
+
+
+def read_recording(path: str | Path, mapping: CsvMapping | str | None = None, rig: RigConfig | None = None) -> Recording:
+    """A Recording from an MCAP log or a CSV (``mapping``: a CsvMapping, a shipped mapping name or a
+    TOML file, for other rigs' CSVs). A log's warnings (e.g. recovered after a kill) go to
+    ``rec.meta["warnings"]``."""
+    p = Path(path)
+    if is_mcap(p):
+        log = read_log(p, timing=False)
+        rec = log_to_recording(log)
+        rec.meta["warnings"] = list(log.warnings)
+        return rec
+    if mapping is None:
+        return read_csv(p)
+    m = load_mapping(mapping) if isinstance(mapping, str) else mapping
+    if rig is None and m.u.to_torque and m.rig:
+        rig = load_rig(m.rig)
+    return read_mapped_csv(p, m, rig)
+
+
+def write_recording(rec: Recording, path: str | Path, rig: RigConfig | None = None, *, extra: bool = False) -> Path:
+    """Write ``rec`` as CSV (.csv) or as a log of ``rig`` (.mcap)."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix == ".mcap":
+        if rig is None:
+            raise UserError(f"writing {p} needs the rig config (--config)")
+        return write_recording_mcap(rec, p, rig)
+    if suffix == ".csv":
+        try:
+            write_csv(rec, p, extra=extra)
+        except OSError as err:
+            raise UserError(f"cannot write {p}: {err.strerror}") from None
+        return p
+    raise UserError(f"output {p}: unknown format {suffix or '(no extension)'!r}; use .csv or .mcap")
