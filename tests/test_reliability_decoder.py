@@ -111,7 +111,7 @@ def test_corrupted_samples_cause_no_tick_and_no_command_in_the_daemon_loop() -> 
     limits = SupervisorLimits.from_config(rig.safety, rate)
     limits = SupervisorLimits(limits.theta_limit, limits.phi_limit, limits.arm_theta, 10**9, limits.settle_ticks)
     loop = ControlLoop(hw, Controller.from_rig(rig), Supervisor(limits),
-                       LoopSettings(rate_hz=rate, link_loss_periods=250, first_sample_timeout=10.0),
+                       LoopSettings(rate_hz=rate, link_timeout_s=0.5, first_sample_timeout=10.0),
                        full_scale=rig.actuator.limit, calibration=cal, log=sink)
     try:
         result = loop.run()
