@@ -73,8 +73,7 @@ def simulate_log(
                 out = ctrl.update(m)
                 u, u_lin, u_comp, phd, sat = out.u, out.u_lin, out.u_comp, out.phi_dot_hat, out.saturated
             else:
-                ctrl.hold(m)
-                u, u_lin, u_comp, phd, sat = 0.0, 0.0, 0.0, ctrl.observer.phi_dot, False
+                u, u_lin, u_comp, phd, sat = 0.0, 0.0, 0.0, ctrl.hold(m), False
             status = (StatusFlags.ENABLED if state == "balancing" else 0) | (StatusFlags.ADC_OVERRANGE if s.overrange else 0)
             ns = round(sim.t * 1e9)
             w.tick(ns, ns, {

@@ -1,0 +1,203 @@
+"""MCAP logs: the layout round trip, logs of killed runs (torn at any byte), damaged and non-MCAP files,
+and `furuta-rt repair` producing a file that mcap's indexed reader opens."""
+
+from __future__ import annotations
+
+import io
+import json
+import struct
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Chunk, Message
+from mcap.stream_reader import StreamReader
+
+from furuta_rt.cli import main
+from furuta_rt.config import RigConfig, load_rig, rig_from_dict
+from furuta_rt.errors import UserError
+from furuta_rt.io import log_schema as ls
+from furuta_rt.io.mcap_read import log_to_recording, read_log
+from furuta_rt.io.repair import is_complete, repair_log
+from furuta_rt.io.rig_toml import rig_to_toml
+from furuta_rt.replay.simulate import simulate_log
+
+
+@pytest.fixture(scope="module")
+def rig() -> RigConfig:
+    return load_rig("thesis")
+
+
+@pytest.fixture(scope="module")
+def log_path(tmp_path_factory: pytest.TempPathFactory, rig: RigConfig) -> Path:
+    """3 s at 500 Hz, a chunk ended every 0.5 s (as the daemon flushes every second)."""
+    return simulate_log(tmp_path_factory.mktemp("mcap") / "run.mcap", rig, 3.0, substep_hz=1000, flush_every=0.5)
+
+
+def independent_tick_count(data: bytes) -> int:
+    """Ticks mcap's own StreamReader yields from ``data`` before the bytes end."""
+    channels: dict[int, str] = {}
+    n = 0
+    try:
+        for rec in StreamReader(io.BytesIO(data)).records:
+            if hasattr(rec, "topic"):
+                channels[rec.id] = rec.topic
+            if isinstance(rec, Message) and channels.get(rec.channel_id) == ls.TICK_TOPIC:
+                n += 1
+    except (McapError, ValueError, EOFError, struct.error):  # the torn end, as the library reports it
+        pass
+    return n
+
+
+@pytest.mark.parametrize("name", ["thesis", "qube_servo2", "macstepien"])
+def test_rig_toml_round_trip(name: str) -> None:
+    rig = load_rig(name)
+    assert rig_from_dict(tomllib.loads(rig_to_toml(rig))) == rig
+
+
+def test_log_round_trip(log_path: Path, rig: RigConfig) -> None:
+    log = read_log(log_path)
+    assert not log.recovered and log.warnings == []
+    assert log.n_ticks == 1500 and set(log.ticks) == set(ls.TICK_FIELDS)
+    assert log.ticks["seq"].dtype == np.int64 and log.ticks["u"].dtype == float and log.ticks["reset"].dtype == bool
+    assert np.array_equal(log.ticks["seq"], np.arange(1500))
+    assert np.allclose(np.diff(log.ticks["t"]), 1 / 500)
+    assert set(log.timing) == set(ls.TIMING_FIELDS) and len(log.timing["seq"]) == 1500
+    assert log.rig == rig
+    assert log.gains is not None and len(log.gains) == 4 and log.run["rate_hz"] == 500.0
+    assert log.events[0]["message"] == "simulated run started"
+    # SI = calibration(counts), as the daemon converts them
+    cal = 2 * np.pi / 4096
+    assert np.array_equal(log.ticks["phi"], log.ticks["phi_count"] * cal)
+    rec = log_to_recording(log)
+    assert np.array_equal(rec.u, log.ticks["u"]) and rec.theta_dot is not None
+    assert set(rec.extra) >= {"phi_dot_hat", "u_lin", "u_comp"}
+
+
+def test_torn_log_read_up_to_last_complete_chunk(tmp_path: Path, log_path: Path) -> None:
+    data = log_path.read_bytes()
+    full = read_log(log_path)
+    with log_path.open("rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    chunk_ends = sorted(c.chunk_start_offset + c.chunk_length for c in summary.chunk_indexes)
+    first_chunk = min(c.chunk_start_offset for c in summary.chunk_indexes)
+    mid_chunk = (first_chunk + chunk_ends[0]) // 2
+    cuts = sorted({8, 9, 60, first_chunk, mid_chunk, chunk_ends[0], chunk_ends[0] + 1, chunk_ends[2] - 7,
+                   *range(100, len(data), len(data) // 23), len(data) - 200, len(data) - 20})
+    cut_path = tmp_path / "cut.mcap"
+    for cut in cuts:
+        cut_path.write_bytes(data[:cut])
+        log = read_log(cut_path)  # never raises
+        n = log.n_ticks
+        assert log.recovered
+        assert np.array_equal(log.ticks["u"], full.ticks["u"][:n]) and np.array_equal(log.ticks["seq"], np.arange(n))
+        assert n == independent_tick_count(data[:cut]), cut
+        assert n == 500 * sum(1 for end in chunk_ends if end <= cut) // 2 or cut > chunk_ends[-1], cut
+        assert any("furuta-rt repair" in w and f"recovered {n} ticks" in w for w in log.warnings)
+        if n:
+            assert f"t = 0.000 … {full.ticks['t'][n - 1]:.3f} s" in log.warnings[0]
+
+
+def test_recovered_span_reaches_the_last_flush(tmp_path: Path, rig: RigConfig) -> None:
+    """Killed at any point, the log reads back up to at most one flush period (0.5 s here) before it."""
+    path = simulate_log(tmp_path / "run.mcap", rig, 3.0, substep_hz=1000, flush_every=0.5)
+    data = path.read_bytes()
+    full = read_log(path)
+    for frac in np.linspace(0.15, 0.97, 9):
+        cut = int(len(data) * frac)
+        (tmp_path / "cut.mcap").write_bytes(data[:cut])
+        log = read_log(tmp_path / "cut.mcap")
+        # the ticks whose chunk the kill interrupted were at most 0.5 s after the last recovered one
+        killed_at = full.ticks["t"][min(log.n_ticks + 249, full.n_ticks - 1)]
+        assert killed_at - (log.ticks["t"][-1] if log.n_ticks else 0.0) <= 0.5 + 1e-9
+
+
+def test_damaged_chunk_is_skipped_with_a_warning(tmp_path: Path, log_path: Path) -> None:
+    data = bytearray(log_path.read_bytes())
+    chunks = []
+    with log_path.open("rb") as fh:
+        for rec in StreamReader(fh, emit_chunks=True).records:
+            if isinstance(rec, Chunk):
+                chunks.append(fh.tell() - len(rec.data))
+    start = chunks[1]
+    data[start + 100 : start + 140] = bytes(40)  # zero 40 bytes inside the second chunk's compressed data
+    bad = tmp_path / "damaged.mcap"
+    bad.write_bytes(bytes(data))
+    log = read_log(bad)
+    assert any("damaged chunk" in w for w in log.warnings)
+    assert 0 < log.n_ticks < 1500 and not log.recovered
+
+
+@pytest.mark.parametrize(("content", "expected"), [
+    (b"", "is empty"),
+    (b"t,theta,phi,u\n0,0,0,0\n", "is not an MCAP file"),
+    (b"\x89MCA", "is not an MCAP file"),
+    (bytes(range(256)) * 8, "is not an MCAP file"),
+])
+def test_not_mcap_is_a_user_error(tmp_path: Path, content: bytes, expected: str) -> None:
+    p = tmp_path / "x.mcap"
+    p.write_bytes(content)
+    with pytest.raises(UserError, match=expected) as err:
+        read_log(p)
+    assert "\n" not in str(err.value)
+
+
+def test_garbage_after_the_magic_reads_as_an_empty_recovered_log(tmp_path: Path) -> None:
+    p = tmp_path / "x.mcap"
+    p.write_bytes(b"\x89MCAP0\r\n" + bytes(range(256)) * 8)
+    log = read_log(p)
+    assert log.n_ticks == 0 and log.recovered and log.rig is None
+    assert any("--config" in w for w in log.warnings)
+
+
+def test_repair_writes_an_indexed_file(tmp_path: Path, log_path: Path) -> None:
+    data = log_path.read_bytes()
+    torn = tmp_path / "killed.mcap"
+    torn.write_bytes(data[: int(len(data) * 0.7)])
+    before = read_log(torn)
+    assert before.recovered and not is_complete(torn)
+    out = tmp_path / "fixed.mcap"
+    report = repair_log(torn, out)
+    assert report.output == out and not report.was_complete and report.dropped_bytes > 0
+    with out.open("rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        ticks = [json.loads(m.data) for _, ch, m in reader.iter_messages(topics=[ls.TICK_TOPIC])]
+        metadata = {m.name for m in reader.iter_metadata()}
+        attachments = {a.name for a in reader.iter_attachments()}
+    assert len(ticks) == before.n_ticks and report.messages == summary.statistics.message_count
+    assert [t["u"] for t in ticks] == before.ticks["u"].tolist()
+    assert metadata >= {ls.RIG_METADATA, ls.RUN_METADATA, ls.DEVICE_METADATA} and ls.RIG_ATTACHMENT in attachments
+    after = read_log(out)
+    assert not after.recovered and after.warnings == [] and after.rig == before.rig
+    assert np.array_equal(after.ticks["u"], before.ticks["u"])
+
+
+def test_repair_in_place_keeps_a_backup_and_leaves_complete_files_alone(tmp_path: Path, log_path: Path) -> None:
+    data = log_path.read_bytes()
+    torn = tmp_path / "killed.mcap"
+    torn.write_bytes(data[: len(data) // 2])
+    assert repair_log(torn).output == torn
+    assert is_complete(torn) and (tmp_path / "killed.mcap.bak").read_bytes() == data[: len(data) // 2]
+    again = repair_log(torn)
+    assert again.was_complete and again.messages == 0
+
+
+def test_repair_cli(tmp_path: Path, log_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    data = log_path.read_bytes()
+    torn = tmp_path / "killed.mcap"
+    torn.write_bytes(data[: len(data) * 3 // 4])
+    assert main(["repair", str(torn), "-o", str(tmp_path / "out.mcap")]) == 0
+    out = capsys.readouterr().out
+    assert "complete chunks" in out and "dropped the last" in out
+    assert main(["repair", str(log_path)]) == 0
+    assert "nothing to repair" in capsys.readouterr().out
+    notmcap = tmp_path / "x.csv"
+    notmcap.write_text("t,theta\n")
+    assert main(["repair", str(notmcap)]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
