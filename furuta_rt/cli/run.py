@@ -1,0 +1,148 @@
+"""`furuta-rt run`: the fixed-rate control daemon (balancing, safety supervisor, MCAP log, live dashboard).
+
+    furuta-rt run --mock --duration 10                 balance the simulated pendulum (no hardware)
+    furuta-rt run --port /dev/ttyACM0 --log run.mcap   the rig
+
+Exit codes: 0 duration reached or operator stop (SIGINT/SIGTERM: u = 0 sent, log closed, summary
+printed); 1 the safety supervisor tripped (reason printed); 2 user error (one line, no traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from furuta_rt.cli._common import add_config_argument, parse_gains, rig_from_args
+from furuta_rt.config import RigConfig
+from furuta_rt.errors import UserError
+
+COMP_MODES = ("none", "coulomb", "stiction", "lugre")
+MOCK_TIMEOUT_MS = 100.0
+"""With --mock the timing trips (link loss, device watchdog, repeated overruns) tolerate stalls up to
+this long: hil-mock is a Python process on a shared host, and it and the pseudo-terminal can stall
+for tens of ms under load, where a rig's MCU and USB link do not. Measured and logged all the same."""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "run",
+        help="run the balancing loop on the rig (--port) or the simulated pendulum (--mock)",
+        description="Fixed-rate control daemon: read SAMPLE → u = L·x + friction compensation → COMMAND, "
+        "with a safety supervisor, an MCAP log and a live dashboard. Exit 0: duration reached or stopped "
+        "by the operator (Ctrl-C); 1: tripped; 2: user error.",
+    )
+    add_config_argument(p)
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--port", metavar="DEV", help="serial device of the DAQ, e.g. /dev/ttyACM0")
+    src.add_argument("--mock", action="store_true", help="start hil-mock (the simulated pendulum) on a pty and use it")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds of device time (default: until Ctrl-C)")
+    p.add_argument("--log", metavar="FILE.mcap", help="write every tick to this MCAP file (opens in Foxglove)")
+    p.add_argument("--comp", choices=COMP_MODES, help="friction compensation (default: the config's compensation.mode)")
+    p.add_argument("--rate", type=int, metavar="HZ", help="loop rate (default: the config's control.rate_hz)")
+    p.add_argument("--gains", metavar="L1,L2,L3,L4", help="use these gains instead of the configured design")
+    p.add_argument("--no-tui", action="store_true", help="no live dashboard; print a summary at the end "
+                   "(the default when stdout is not a terminal)")
+    p.add_argument("--tui", action="store_true", help="force the live dashboard")
+    p.add_argument("--no-rt", action="store_true", help="do not ask for SCHED_FIFO, memory locking or CPU pinning")
+    p.add_argument("--baud", type=int, default=1_000_000, help="UART baud rate (ignored by USB CDC; default 1000000)")
+    p.add_argument("--watchdog-ms", type=int, metavar="MS",
+                   help="device watchdog (default 20 ms and at least 5 periods; with --mock 100 ms)")
+    p.add_argument("--link-timeout-ms", type=float, metavar="MS",
+                   help="no SAMPLE for this long trips the loop (default: safety.link_loss_periods periods; "
+                   f"with --mock {MOCK_TIMEOUT_MS:g} ms)")
+    p.add_argument("--max-overruns", type=int, metavar="N",
+                   help="trip after N commanded ticks in a row miss their deadline (default: "
+                   f"safety.max_consecutive_overruns; with --mock {MOCK_TIMEOUT_MS:g} ms worth of ticks)")
+    p.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON to FILE")
+    m = p.add_argument_group("--mock options (passed to hil-mock)")
+    m.add_argument("--mock-effect", action="append", default=[], metavar="NAME.PARAM=VALUE",
+                   help="physics the simulated rig has beyond the config, e.g. arm_coulomb.Fc=0.3 (repeatable)")
+    m.add_argument("--mock-fault", action="append", default=[], metavar="KIND@T[:DUR]",
+                   help="scheduled device fault, e.g. mute@3:100ms, disconnect@5 (repeatable)")
+    m.add_argument("--mock-seed", type=int, metavar="N", help="sensor-noise seed of the mock")
+    m.add_argument("--mock-initial-theta", type=float, metavar="RAD", default=0.05,
+                   help="pendulum angle when the mock starts (default 0.05 rad: arms at once)")
+    m.add_argument("--mock-arg", action="append", default=[], metavar="ARG",
+                   help="any other hil-mock argument, e.g. --mock-arg=--drop-rate=0.001 (repeatable)")
+    p.set_defaults(func=run)
+
+
+def effective_rig(rig: RigConfig, rate: int | None, mode: str | None, gains: list[float] | None) -> RigConfig:
+    """The rig as this run uses it (what the log records): --rate, --comp and --gains applied."""
+    control = rig.control
+    if rate is not None:
+        control = control.model_copy(update={"rate_hz": float(rate)})
+    if gains is not None:
+        control = control.model_copy(update={"design": "gains", "gains": list(gains)})
+    comp = rig.compensation if mode is None else rig.compensation.model_copy(update={"mode": mode})
+    return rig.model_copy(update={"control": control, "compensation": comp})
+
+
+def mock_arguments(args: argparse.Namespace, rig_source: str, rate: int) -> list[str]:
+    out = ["--rig", rig_source, "--rate", str(rate), "--initial-theta", repr(args.mock_initial_theta)]
+    for e in args.mock_effect:
+        out += ["--effect", e]
+    for f in args.mock_fault:
+        out += ["--fault", f]
+    if args.mock_seed is not None:
+        out += ["--seed", str(args.mock_seed)]
+    return out + list(args.mock_arg)
+
+
+def run(args: argparse.Namespace) -> int:
+    from furuta_rt.runtime.daemon import RunOptions, default_tui, run_daemon
+
+    if not args.mock and not args.port:
+        raise UserError("give --port DEV (the rig's DAQ, e.g. /dev/ttyACM0) or --mock (the simulated pendulum)")
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        raise UserError(f"--duration {args.duration:g}: must be a positive number of seconds")
+    if args.rate is not None and not 1 <= args.rate <= 10_000:
+        raise UserError(f"--rate {args.rate}: must be between 1 and 10000 Hz")
+    has_mock_opts = args.mock_effect or args.mock_fault or args.mock_arg or args.mock_seed is not None
+    if has_mock_opts and not args.mock:
+        raise UserError("--mock-effect/--mock-fault/--mock-seed/--mock-arg only apply with --mock")
+    rig = rig_from_args(args)
+    gains = parse_gains(args.gains)
+    rig = effective_rig(rig, args.rate, args.comp, gains)
+    rate_f = rig.control.rate_hz
+    if rate_f != int(rate_f):
+        raise UserError(f"control.rate_hz = {rate_f:g}: the device needs a whole number of Hz; pass --rate")
+    rate = int(rate_f)
+    period_ms = 1000.0 / rate
+    default_watchdog = MOCK_TIMEOUT_MS if args.mock else max(20, math.ceil(5 * period_ms))
+    watchdog = args.watchdog_ms if args.watchdog_ms is not None else int(default_watchdog)
+    if not 1 <= watchdog <= 65535:
+        raise UserError(f"--watchdog-ms {watchdog}: must be 1..65535")
+    link_ms = rig.safety.link_loss_periods * period_ms
+    if args.link_timeout_ms is not None:
+        if not args.link_timeout_ms > 0:
+            raise UserError(f"--link-timeout-ms {args.link_timeout_ms:g}: must be > 0")
+        link_ms = args.link_timeout_ms
+    elif args.mock:
+        link_ms = max(link_ms, MOCK_TIMEOUT_MS)
+    max_overruns = rig.safety.max_consecutive_overruns
+    if args.max_overruns is not None:
+        if args.max_overruns < 1:
+            raise UserError(f"--max-overruns {args.max_overruns}: must be >= 1")
+        max_overruns = args.max_overruns
+    elif args.mock:
+        max_overruns = max(max_overruns, math.ceil(MOCK_TIMEOUT_MS / period_ms))
+    rig_source = args.config or "thesis"
+    opts = RunOptions(
+        rig=rig,
+        mode=rig.compensation.mode,
+        duration=args.duration,
+        port=args.port,
+        mock_args=mock_arguments(args, rig_source, rate) if args.mock else None,
+        baud=args.baud,
+        watchdog_ms=watchdog,
+        link_timeout_s=link_ms * 1e-3,
+        max_overruns=max_overruns,
+        log_path=args.log,
+        tui=(args.tui or default_tui()) and not args.no_tui,
+        realtime=not args.no_rt,
+        gains=gains,
+        summary_json=args.summary_json,
+        rig_source=rig_source,
+    )
+    return run_daemon(opts)

@@ -1,0 +1,11 @@
+"""`furuta-rt run`: the fixed-rate control daemon, ros2_control style.
+
+    hardware    HardwareInterface / SerialHardware: handshake, read SAMPLE, write COMMAND
+    supervisor  the safety state machine (pure): idle → armed → balancing → tripped
+    loop        the manager: read → Controller.update/hold → write, timing accounting
+    timing      device clock, histograms, running statistics
+    logger      the MCAP writer process (furuta_rt.io.log_schema layout)
+    dashboard   the rich Live dashboard process
+    rt          gc freeze, SCHED_FIFO, mlockall, CPU affinity
+    daemon      process orchestration and the summary; summary: its text and JSON
+"""

@@ -1,0 +1,281 @@
+"""`furuta-rt run` end to end: device (or hil_mock), logger and dashboard processes, the loop, the summary.
+
+Process layout (multiprocessing 'spawn': children start from a clean interpreter):
+
+    control (this process)  read → update → write at the device's rate; gc frozen; SCHED_FIFO,
+                            mlockall and CPU affinity when permitted
+    logger                  MCAP writing, fed tick batches through a bounded queue
+    dashboard               rich Live view, fed ≤ 10 snapshots/s (only with a terminal)
+    hil-mock (--mock)       the simulated DAQ on a pseudo-terminal
+
+Start-up order matters: the device handshake comes last, right before the first tick, because the
+pendulum (real or simulated) starts moving when the device starts streaming.
+
+Exit codes: 0 the duration was reached or the operator stopped the run (SIGINT/SIGTERM), with u = 0
+sent and the log closed; 1 the supervisor tripped (reason printed); 2 user error (one line).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import multiprocessing
+import os
+import socket
+import sys
+import time
+from dataclasses import dataclass, field
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+from firmware_protocol import DEFAULT_WATCHDOG_MS
+from furuta_rt.config import RigConfig
+from furuta_rt.control.controller import Controller
+from furuta_rt.errors import UserError
+from furuta_rt.io.log_schema import DEVICE_METADATA
+from furuta_rt.runtime.hardware import DeviceInfo, SerialHardware
+from furuta_rt.runtime.logger import LogSetup, logger_process
+from furuta_rt.runtime.loop import ControlLoop, LoopResult, LoopSettings
+from furuta_rt.runtime.rt import setup_realtime
+from furuta_rt.runtime.summary import format_summary, summary_dict
+from furuta_rt.runtime.supervisor import Supervisor, SupervisorLimits
+
+LOG_QUEUE_BATCHES = 200  # 20 s of ticks at 10 batches/s before the loop starts dropping
+CHILD_START_TIMEOUT_S = 60.0
+EXIT_OK, EXIT_TRIPPED = 0, 1
+
+
+@dataclass
+class RunOptions:
+    rig: RigConfig  # effective: --rate and --comp already applied
+    mode: str
+    duration: float | None = None
+    port: str | None = None
+    mock_args: list[str] | None = None  # None: a real device on ``port``
+    baud: int = 1_000_000
+    watchdog_ms: int = DEFAULT_WATCHDOG_MS
+    link_timeout_s: float = 0.004  # no SAMPLE for this long = link loss
+    max_overruns: int | None = None  # None: the rig's safety.max_consecutive_overruns
+    log_path: str | None = None
+    tui: bool = False
+    realtime: bool = True
+    gains: list[float] | None = None
+    summary_json: str | None = None
+    rig_source: str = "thesis"
+    warnings: list[str] = field(default_factory=list)
+
+
+def _version() -> str:
+    try:
+        return version("furuta-rt")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _say(message: str) -> None:
+    print(f"furuta-rt: {message}", file=sys.stderr, flush=True)
+
+
+def _check_log_path(path: str) -> None:
+    p = Path(path)
+    if p.is_dir():
+        raise UserError(f"--log {path} is a directory; give a file name such as run.mcap")
+    try:
+        with open(p, "wb"):
+            pass
+    except OSError as err:
+        raise UserError(f"cannot write the log {path}: {err.strerror}") from None
+
+
+def _rig_toml(rig: RigConfig) -> str:
+    from furuta_rt.io.rig_toml import rig_to_toml
+
+    return rig_to_toml(rig)
+
+
+def _check_device(info: DeviceInfo, rig: RigConfig, warnings: list[str]) -> None:
+    """Refuse a device that cannot run this rig; warn where its calibration differs from the config."""
+    if info.actuator_kind != rig.actuator.kind:
+        raise UserError(f"the device drives a {info.actuator_kind} actuator but rig '{rig.name}' is configured "
+                        f"for '{rig.actuator.kind}'; use the matching --config")
+    if not info.full_scale > 0:
+        raise UserError(f"the device reports actuator full scale {info.full_scale}; check the firmware")
+    if rig.actuator.limit > info.full_scale:
+        warnings.append(f"actuator limit {rig.actuator.limit:g} exceeds the device full scale "
+                        f"{info.full_scale:g}: commands beyond it are clipped by the device")
+    cal, s = info.calibration, rig.sensors
+    if cal.phi_counts_per_rev != s.encoder_counts_per_rev:
+        warnings.append(f"device encoder has {cal.phi_counts_per_rev} counts/rev, the config says "
+                        f"{s.encoder_counts_per_rev}; using the device's")
+    for name, dev, cfg in (("theta_rad_per_count", cal.theta_rad_per_count, s.theta_rad_per_count),
+                           ("theta_dot_rad_s_per_count", cal.theta_dot_rad_s_per_count, s.theta_dot_rad_s_per_count)):
+        if abs(dev - cfg) > 1e-6 * abs(cfg):
+            warnings.append(f"device {name} = {dev:.6g} differs from the config's {cfg:.6g}; using the device's")
+
+
+class _Children:
+    """The logger and dashboard processes and their queues."""
+
+    def __init__(self) -> None:
+        self.ctx = multiprocessing.get_context("spawn")
+        self.log_q: Any = None
+        self.logger: Any = None
+        self.dash_q: Any = None
+        self.dashboard: Any = None
+
+    def start_logger(self, setup: LogSetup) -> None:
+        self.log_q = self.ctx.Queue(maxsize=LOG_QUEUE_BATCHES)
+        ready = self.ctx.Event()
+        proc = self.ctx.Process(target=logger_process, args=(setup, self.log_q, ready), name="furuta-rt-logger")
+        proc.start()
+        self.logger = proc
+        if not ready.wait(CHILD_START_TIMEOUT_S):
+            raise UserError(f"the logger process did not start within {CHILD_START_TIMEOUT_S:g} s (log {setup.path})")
+
+    def start_dashboard(self, title: str) -> None:
+        from furuta_rt.runtime.dashboard import dashboard_process
+
+        self.dash_q = self.ctx.Queue(maxsize=2)
+        proc = self.ctx.Process(target=dashboard_process, args=(self.dash_q, title), name="furuta-rt-dashboard")
+        proc.start()
+        self.dashboard = proc
+
+    def stop_dashboard(self) -> None:
+        if self.dashboard is None:
+            return
+        with contextlib.suppress(Exception):  # full or broken: terminated below
+            self.dash_q.put(None, timeout=1.0)
+        self.dashboard.join(3.0)
+        if self.dashboard.is_alive():
+            self.dashboard.terminate()
+        self.dashboard = None
+
+    def close_logger(self, summary: str) -> bool:
+        """Send "close" and wait for the file to be finished; True if it was."""
+        if self.logger is None:
+            return True
+        ok = True
+        try:
+            self.log_q.put(("close", summary), timeout=10.0)
+        except Exception:
+            ok = False
+        self.logger.join(30.0)
+        if self.logger.is_alive():
+            self.logger.terminate()
+            ok = False
+        ok = ok and self.logger.exitcode == 0
+        self.logger = None
+        return ok
+
+
+def _start_mock(args: list[str]) -> tuple[Any, str]:
+    try:
+        from hil_mock import MockStartError, start_mock_subprocess
+    except ImportError as err:  # pragma: no cover - hil_mock ships with furuta-rt
+        raise UserError(f"--mock needs the hil_mock package ({err})") from None
+    try:
+        return start_mock_subprocess(args)
+    except MockStartError as err:
+        raise UserError(f"--mock: {err}") from None
+
+
+def _stop_mock(proc: Any) -> str:
+    from hil_mock import stop_mock_subprocess
+
+    return stop_mock_subprocess(proc)
+
+
+def run_daemon(opts: RunOptions) -> int:
+    """Run one session; returns the exit code (UserError propagates for exit 2)."""
+    rig = opts.rig
+    rate = int(rig.control.rate_hz)
+    warnings = list(opts.warnings)
+    ctrl = Controller.from_rig(rig, mode=opts.mode, gains=opts.gains)  # type: ignore[arg-type]
+    limits = SupervisorLimits.from_config(rig.safety, rate)
+    if opts.max_overruns is not None:
+        limits = dataclasses.replace(limits, max_consecutive_overruns=opts.max_overruns)
+    sup = Supervisor(limits)
+    if opts.log_path:
+        _check_log_path(opts.log_path)
+    children = _Children()
+    mock_proc = None
+    hw: SerialHardware | None = None
+    result: LoopResult | None = None
+    mock_stats = ""
+    try:
+        port = opts.port
+        if opts.mock_args is not None:
+            mock_proc, port = _start_mock(opts.mock_args)
+        assert port is not None
+        hw = SerialHardware(port, opts.baud)
+        hw.open()
+        warnings += hw.warnings
+        if opts.log_path:
+            run_meta = {
+                "mode": opts.mode, "gains": json.dumps(list(ctrl.gains)), "rate_hz": str(rate), "port": port,
+                "version": _version(), "rig_source": opts.rig_source, "mock": json.dumps(opts.mock_args),
+                "duration": str(opts.duration), "host": socket.gethostname(),
+                "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            }
+            children.start_logger(LogSetup(path=opts.log_path, rig_name=rig.name, rig_toml=_rig_toml(rig),
+                                           rig_json=rig.model_dump_json(), run=run_meta))
+        applied, rt_warnings = setup_realtime(opts.realtime)
+        warnings += rt_warnings
+        sys.setswitchinterval(1e-4)  # a queue feeder thread must give the GIL back quickly
+        for w in warnings:
+            _say(f"warning: {w}")
+        if opts.tui:
+            children.start_dashboard(f"furuta-rt run — {rig.name}, {opts.mode}, {rate} Hz")
+        if children.log_q is not None:  # the first put starts the queue's feeder thread: not in a tick
+            children.log_q.put(("event", (time.time_ns(), "INFO", f"connecting to {port} at {rate} Hz")))
+        info = hw.handshake(rate, opts.watchdog_ms)
+        _check_device(info, rig, late_warnings := [])
+        if not opts.tui:  # with the dashboard they show as its events
+            for w in late_warnings:
+                _say(f"warning: {w}")
+        loop = ControlLoop(
+            hw, ctrl, sup,
+            LoopSettings(rate_hz=rate, duration=opts.duration, link_timeout_s=opts.link_timeout_s,
+                         batch_ticks=max(1, rate // 10), snapshot_ticks=max(1, rate // 10)),
+            full_scale=info.full_scale, theta_dot_offset_counts=info.theta_dot_offset_counts,
+            calibration=info.calibration, log=children.log_q, dashboard=children.dash_q, mode=opts.mode,
+            on_event=None if opts.tui else (lambda level, msg: _say(msg if level == "INFO" else f"{level.lower()}: {msg}")),
+        )
+        if children.log_q is not None:
+            children.log_q.put_nowait(("metadata", DEVICE_METADATA, info.metadata()))
+        loop.event("INFO", f"device {info.ack.device_id:#010x} firmware {info.firmware} at {port}, {info.rate_hz} Hz, "
+                   f"watchdog {info.watchdog_ms} ms; {', '.join(applied)}")
+        for w in warnings + late_warnings:
+            loop.event("WARNING", w)
+        warnings += late_warnings
+        result = loop.run()
+        result.trip_message = sup.transitions[-1].message if sup.tripped and sup.transitions else ""
+    finally:
+        if hw is not None:
+            hw.stop()
+            hw.close()
+        children.stop_dashboard()
+        summary = "" if result is None else format_summary(result, rate_hz=rate, mode=opts.mode, rig=rig.name,
+                                                            log_path=opts.log_path)
+        log_ok = children.close_logger(summary)
+        if mock_proc is not None:
+            mock_stats = _stop_mock(mock_proc)
+    assert result is not None
+    print(summary, flush=True)
+    if mock_stats.strip():
+        print("\n".join("  " + line for line in mock_stats.strip().splitlines()), flush=True)
+    if not log_ok:
+        _say(f"warning: the log {opts.log_path} may be incomplete (the logger did not finish)")
+    if opts.summary_json:
+        data = summary_dict(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path, warnings=warnings)
+        Path(opts.summary_json).write_text(json.dumps(data, indent=1) + "\n")
+    if result.end == "trip":
+        return EXIT_TRIPPED
+    return EXIT_OK
+
+
+def default_tui() -> bool:
+    """The dashboard is on when stdout is a terminal (and TERM is not 'dumb')."""
+    return sys.stdout.isatty() and os.environ.get("TERM", "") != "dumb"

@@ -1,0 +1,410 @@
+"""The control loop (the manager): read → update → write, clocked by the device's SAMPLE stream.
+
+Per tick:
+
+1. ``read``: block on the next SAMPLE (no SAMPLE within ``link_timeout_s`` = link loss; for a rig
+   that is safety.link_loss_periods periods);
+2. convert counts to SI with the device's calibration (HELLO_ACK);
+3. the supervisor decides the state; at arming ``Controller.reset(φ)``; ``Controller.update`` when
+   balancing, ``Controller.hold`` otherwise (the replay rule of furuta_rt.io.log_schema);
+4. ``write`` one COMMAND (ENABLE only when balancing). A sample that is already stale (a newer one is
+   waiting: the period was missed) runs through the controller, so the observer keeps the device's
+   time step, but gets no COMMAND: whole periods are skipped, commands are never burst;
+5. a tick record goes into the current batch; every ``batch_ticks`` ticks the batch is handed to the
+   logger process with ``put_nowait`` (a full queue drops the batch and counts it).
+
+On a trip, a signal or an exception, u = 0 with ENABLE clear is written *before* anything is logged
+or printed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import queue
+import signal
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from firmware_protocol import COMMAND_FULL_SCALE, FAULT_MASK, CommandFlags, StatusFlags
+from furuta_rt.control.controller import Controller, Measurement
+from furuta_rt.runtime.hardware import HardwareInterface, LinkLost
+from furuta_rt.runtime.supervisor import STATE_NAMES, State, Supervisor, TripReason
+from furuta_rt.runtime.timing import DeviceClock, Histogram, RunningStats
+
+TICK_RECORD: tuple[str, ...] = (
+    "wall_ns", "dev_ns", "seq", "t", "theta_adc", "theta_dot_adc", "phi_count", "status",
+    "theta", "theta_dot", "phi", "phi_dot_hat", "u", "u_lin", "u_comp", "saturated", "state", "reset",
+    "period_us", "read_us", "update_us", "write_us", "latency_us", "lateness_us",
+    "overruns", "seq_gaps", "crc_errors", "dropped",
+)  # fmt: skip
+"""Field order of the tuples the loop sends to the logger (``state`` is an index into STATE_NAMES)."""
+
+_ENABLE = int(CommandFlags.ENABLE)
+_CLEAR_FAULT = int(CommandFlags.CLEAR_FAULT)
+_FAULT_MASK = int(FAULT_MASK)
+_COMMAND_LATE = int(StatusFlags.COMMAND_LATE)
+_TICK_OVERRUN = int(StatusFlags.TICK_OVERRUN)
+_BALANCING = State.BALANCING
+_TRIPPED = State.TRIPPED
+
+
+class Sink(Protocol):
+    def put_nowait(self, item: Any) -> None: ...
+
+
+@dataclass
+class LoopSettings:
+    rate_hz: float
+    duration: float | None = None  # s of device time; None = until stopped
+    link_timeout_s: float = 0.004  # no SAMPLE for this long = link loss (rig: safety.link_loss_periods periods)
+    first_sample_timeout: float = 1.0  # s to wait for the stream to start
+    batch_ticks: int = 50  # ticks per logger batch
+    snapshot_ticks: int = 50  # ticks per dashboard snapshot (≤ 10 Hz at 500 Hz)
+    stats_after_s: float = 1.0  # std θ/φ/u exclude the first second of balancing
+
+
+@dataclass
+class LoopResult:
+    ticks: int = 0
+    balancing_ticks: int = 0
+    end: str = "duration"  # duration | trip | operator_stop | link_loss | error
+    trip_reason: str = ""
+    trip_message: str = ""
+    final_state: str = "idle"
+    host_span_s: float = 0.0
+    device_span_s: float = 0.0
+    overruns: int = 0  # commanded ticks that missed their deadline (one per host stall)
+    skipped_periods: int = 0  # stale samples that got no command
+    late_commands: int = 0  # device COMMAND_LATE flags while balancing
+    device_overruns: int = 0  # samples flagged TICK_OVERRUN: the device itself was late
+    seq_gaps: int = 0
+    crc_errors: int = 0
+    dropped_log_messages: int = 0
+    period_us: Histogram = field(default_factory=Histogram)
+    jitter_us: Histogram = field(default_factory=Histogram)
+    read_us: Histogram = field(default_factory=Histogram)
+    update_us: Histogram = field(default_factory=Histogram)
+    write_us: Histogram = field(default_factory=Histogram)
+    latency_us: Histogram = field(default_factory=Histogram)
+    lateness_us: Histogram = field(default_factory=Histogram)
+    theta: RunningStats = field(default_factory=RunningStats)
+    phi: RunningStats = field(default_factory=RunningStats)
+    u: RunningStats = field(default_factory=RunningStats)
+    u_comp: RunningStats = field(default_factory=RunningStats)
+    events: list[tuple[int, str, str]] = field(default_factory=list)  # (wall ns, level, message)
+
+    @property
+    def rate_hz(self) -> float:
+        return (self.ticks - 1) / self.host_span_s if self.ticks > 1 and self.host_span_s > 0 else math.nan
+
+    @property
+    def device_rate_hz(self) -> float:
+        return (self.ticks - 1) / self.device_span_s if self.ticks > 1 and self.device_span_s > 0 else math.nan
+
+
+class ControlLoop:
+    """Runs ticks until the duration is reached, a trip, or ``request_stop`` (signal-safe)."""
+
+    def __init__(
+        self,
+        hw: HardwareInterface,
+        controller: Controller,
+        supervisor: Supervisor,
+        settings: LoopSettings,
+        *,
+        full_scale: float,
+        theta_dot_offset_counts: int = 0,
+        calibration: Any,
+        log: Sink | None = None,
+        dashboard: Sink | None = None,
+        on_event: Callable[[str, str], None] | None = None,
+        mode: str = "none",
+    ) -> None:
+        self.hw = hw
+        self.ctrl = controller
+        self.sup = supervisor
+        self.settings = settings
+        self.full_scale = full_scale
+        self.tdo = theta_dot_offset_counts
+        self.cal = calibration
+        self.log = log
+        self.dashboard = dashboard
+        self.on_event = on_event
+        self.mode = mode
+        self.result = LoopResult()
+        self._stop: str | None = None
+        self._batch: list[tuple] = []
+        self._wall0 = time.time_ns()
+        self._perf0 = time.perf_counter_ns()
+        self._n_sup_transitions = 0
+        self._last_seq = 0
+
+    # ----------------------------------------------------------------- control
+    def request_stop(self, reason: str) -> None:
+        """Ask the loop to stop at its next wake-up (safe from a signal handler)."""
+        if self._stop is None:
+            self._stop = reason
+
+    def _signal(self, signum: int, _frame: object) -> None:
+        self.request_stop(signal.Signals(signum).name)
+
+    def _counts(self, u: float) -> int:
+        c = round(u / self.full_scale * COMMAND_FULL_SCALE)
+        return COMMAND_FULL_SCALE if c > COMMAND_FULL_SCALE else max(c, -COMMAND_FULL_SCALE)
+
+    def _zero(self) -> None:
+        """u = 0, ENABLE clear, answering the last sample. Never raises."""
+        with contextlib.suppress(Exception):  # the link may be gone; stop() retries
+            self.hw.write(self._last_seq, 0, 0)
+
+    # ----------------------------------------------------------------- outputs
+    def _wall(self, perf_ns: int) -> int:
+        return self._wall0 + (perf_ns - self._perf0)
+
+    def event(self, level: str, message: str, perf_ns: int | None = None) -> None:
+        """Record a supervisor/fault/warning event: logged (after the pending ticks) and shown."""
+        wall = self._wall(time.perf_counter_ns() if perf_ns is None else perf_ns)
+        self.result.events.append((wall, level, message))
+        self._flush_batch()
+        if self.log is not None:
+            try:
+                self.log.put_nowait(("event", (wall, level, message)))
+            except queue.Full:
+                self.result.dropped_log_messages += 1
+        if self.on_event is not None:
+            self.on_event(level, message)
+
+    def _flush_batch(self) -> None:
+        batch = self._batch
+        if not batch:
+            return
+        self._batch = []
+        if self.log is None:
+            return
+        try:
+            self.log.put_nowait(("ticks", batch))
+        except queue.Full:
+            self.result.dropped_log_messages += len(batch)
+
+    def _transitions(self) -> None:
+        tr = self.sup.transitions
+        while self._n_sup_transitions < len(tr):
+            t = tr[self._n_sup_transitions]
+            self._n_sup_transitions += 1
+            level = "ERROR" if t.new is State.TRIPPED and t.reason != TripReason.OPERATOR_STOP else "INFO"
+            self.event(level, f"{t.old.label} → {t.new.label}: {t.message} (seq {t.seq})")
+
+    def _snapshot(self, now_ns: int, state: int, theta: float, phi: float, u: float, u_comp: float,
+                  win_ticks: int, win_start: int, win_max_dev: float) -> None:
+        r = self.result
+        span = (now_ns - win_start) * 1e-9
+        snap = {
+            "elapsed": (now_ns - self._perf0) * 1e-9, "state": STATE_NAMES[state], "mode": self.mode,
+            "theta": theta, "phi": phi, "u": u, "u_comp": u_comp,
+            "rate_hz": win_ticks / span if span > 0 else 0.0, "jitter_max_us": win_max_dev,
+            "overruns": r.overruns, "late_commands": r.late_commands, "seq_gaps": r.seq_gaps,
+            "crc_errors": self.hw.crc_errors, "dropped": r.dropped_log_messages, "ticks": r.ticks,
+            "trip": self.sup.reason, "events": [m for _, _, m in r.events[-4:]],
+        }
+        with contextlib.suppress(queue.Full):  # the dashboard is behind: skip this snapshot
+            self.dashboard.put_nowait(snap)  # type: ignore[union-attr]
+
+    # ----------------------------------------------------------------- the loop
+    def run(self) -> LoopResult:
+        old = {s: signal.signal(s, self._signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            self._run()
+        except LinkLost as err:
+            self._zero()
+            self._end_link_loss(str(err))
+        except BaseException as err:
+            self._zero()
+            self.sup.trip(self._last_seq, TripReason.ERROR, f"{type(err).__name__}: {err}")
+            self.result.end = "error"
+            self._transitions()
+            raise
+        finally:
+            self.hw.stop()  # u = 0 (ENABLE clear) and STOP, on every path
+            for s, h in old.items():
+                signal.signal(s, h)
+            r = self.result
+            r.final_state = self.sup.state.label
+            r.trip_reason = self.sup.reason
+            r.crc_errors = self.hw.crc_errors
+            self._flush_batch()
+        return self.result
+
+    def _end_link_loss(self, message: str) -> None:
+        self.sup.trip(self._last_seq, TripReason.LINK_LOSS, message)
+        self.result.end = "trip"
+        self._transitions()
+
+    def _run(self) -> None:
+        st = self.settings
+        hw, ctrl, sup, r = self.hw, self.ctrl, self.sup, self.result
+        cal, tdo = self.cal, self.tdo
+        nominal_us = 1e6 / st.rate_hz
+        loss_timeout = st.link_timeout_s
+        target = None if st.duration is None else round(st.duration * st.rate_hz)
+        stats_after = round(st.stats_after_s * st.rate_hz)
+        clock = DeviceClock()
+        perf = time.perf_counter_ns
+        batch_ticks = st.batch_ticks
+        snap_ticks = st.snapshot_ticks if self.dashboard is not None else 0
+        log_on = self.log is not None
+        counts = self._counts
+        h_period, h_jit, h_read, h_upd, h_wr, h_lat, h_late = (
+            r.period_us, r.jitter_us, r.read_us, r.update_us, r.write_us, r.latency_us, r.lateness_us)
+        prev_start = 0
+        prev_seq = -1
+        prev_balancing = False
+        wrote_prev = False
+        skipped = 0
+        first_dev_us = 0
+        balance_start = -1
+        win_ticks, win_start, win_max = 0, perf(), 0.0
+        timeout = st.first_sample_timeout
+        while True:
+            t0 = perf()
+            s = hw.read(timeout)
+            t1 = perf()
+            if self._stop is not None:
+                self._zero()
+                sup.trip(self._last_seq, TripReason.OPERATOR_STOP, f"operator stop ({self._stop})")
+                r.end = "operator_stop"
+                self._transitions()
+                return
+            if s is None:
+                waited = (t1 - t0) * 1e-9
+                self._zero()
+                what = "the device sent no SAMPLE" if r.ticks == 0 else "no SAMPLE"
+                self._end_link_loss(f"link loss: {what} for {waited * 1e3:.1f} ms "
+                                    f"(limit {timeout * 1e3:.1f} ms) after seq {self._last_seq}")
+                return
+            timeout = loss_timeout
+            seq = s.seq
+            self._last_seq = seq
+            arrival = hw.arrival_ns
+            read_us = (t1 - arrival if arrival >= t0 else t1 - t0) * 1e-3
+            dev_us = clock.unwrap(s.t_us)
+            est_ns = clock.observe(dev_us, arrival)
+            n = r.ticks
+            if n == 0:
+                first_dev_us = dev_us
+                period_us = nominal_us
+            else:
+                period_us = (t1 - prev_start) * 1e-3
+                gap = (seq - prev_seq - 1) & 0xFFFFFFFF
+                if 0 < gap < 0x80000000:
+                    r.seq_gaps += gap
+            prev_start = t1
+            prev_seq = seq
+            stale = hw.pending > 0
+            status = s.status
+            if prev_balancing and status & _COMMAND_LATE:
+                r.late_commands += 1
+            if status & _TICK_OVERRUN:
+                r.device_overruns += 1
+            if stale:  # a newer sample is waiting: this period is skipped (no command)
+                r.skipped_periods += 1
+                skipped += 1
+                late: bool | None = None
+            else:  # an overrun: periods were skipped before it, or the device got our last command late
+                late = skipped > 0 or (wrote_prev and status & _COMMAND_LATE != 0)
+                if late:
+                    r.overruns += 1
+                skipped = 0
+            theta, theta_dot, phi = cal.to_si(s.theta_adc, s.theta_dot_adc - tdo, s.phi_count)
+            state, reset = sup.step(seq, theta, phi, status, late)
+            if reset:
+                ctrl.reset(phi)
+            t2 = perf()
+            m = Measurement(dev_us * 1e-6, theta, theta_dot, phi)
+            if state is _BALANCING:
+                out = ctrl.update(m)
+                u = out.u
+                if u - u != 0.0:  # NaN or inf
+                    self._zero()
+                    sup.command_not_finite(seq, u)
+                    state = _TRIPPED
+                    u = u_lin = u_comp = 0.0
+                    sat = False
+                    phd = out.phi_dot_hat
+                else:
+                    u_lin, u_comp, phd, sat = out.u_lin, out.u_comp, out.phi_dot_hat, out.saturated
+            else:
+                phd = ctrl.hold(m)
+                u = u_lin = u_comp = 0.0
+                sat = False
+            t3 = perf()
+            if state is _TRIPPED or not stale:
+                if state is _BALANCING:
+                    hw.write(seq, counts(u), _ENABLE)
+                else:  # zero; clear a latched fault while waiting to arm
+                    hw.write(seq, 0, _CLEAR_FAULT if (status & _FAULT_MASK and state is State.IDLE) else 0)
+                t4 = perf()
+                latency_us = (t4 - est_ns) * 1e-3
+                h_lat.add(latency_us)
+            else:
+                t4 = t3
+                latency_us = -1.0
+            prev_balancing = state is _BALANCING
+            wrote_prev = not stale
+            # ---- accounting (after the command is out)
+            update_us = (t3 - t2) * 1e-3
+            write_us = (t4 - t3) * 1e-3
+            lateness_us = (t1 - est_ns) * 1e-3
+            dev = period_us - nominal_us
+            if dev < 0:
+                dev = -dev
+            if n:
+                h_period.add(period_us)
+                h_jit.add(dev)
+            h_read.add(read_us)
+            h_upd.add(update_us)
+            h_wr.add(write_us)
+            h_late.add(lateness_us)
+            r.ticks = n + 1
+            r.host_span_s = (t1 - self._first_t1) * 1e-9 if n else 0.0
+            if n == 0:
+                self._first_t1 = t1
+            r.device_span_s = (dev_us - first_dev_us) * 1e-6
+            if prev_balancing:
+                r.balancing_ticks += 1
+                if balance_start < 0:
+                    balance_start = n
+                if n - balance_start >= stats_after:
+                    r.theta.add(theta)
+                    r.phi.add(phi)
+                    r.u.add(u)
+                    r.u_comp.add(u_comp)
+            if log_on:
+                self._batch.append((
+                    self._wall0 + (t1 - self._perf0), dev_us * 1000, seq, dev_us * 1e-6,
+                    s.theta_adc, s.theta_dot_adc, s.phi_count, status,
+                    theta, theta_dot, phi, phd, u, u_lin, u_comp, sat, int(state), reset,
+                    period_us, read_us, update_us, write_us, latency_us, lateness_us,
+                    r.overruns, r.seq_gaps, hw.crc_errors, r.dropped_log_messages,
+                ))
+                if len(self._batch) >= batch_ticks:
+                    self._flush_batch()
+            if len(sup.transitions) != self._n_sup_transitions:
+                self._transitions()
+            if snap_ticks:
+                win_ticks += 1
+                if dev > win_max:
+                    win_max = dev
+                if win_ticks >= snap_ticks:
+                    self._snapshot(t4, int(state), theta, phi, u, u_comp, win_ticks, win_start, win_max)
+                    win_ticks, win_start, win_max = 0, t4, 0.0
+            if state is _TRIPPED:
+                r.end = "trip"
+                return
+            if target is not None and r.ticks >= target:
+                r.end = "duration"
+                return
+
+    _first_t1 = 0

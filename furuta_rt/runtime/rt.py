@@ -1,0 +1,95 @@
+"""Real-time setup of the control process: frozen GC, SCHED_FIFO, locked memory, CPU affinity.
+
+Each step is attempted and, when the system does not permit it, turned into a warning naming the
+fix; none is ever a failure (the loop still runs, with more jitter).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import gc
+import os
+
+MCL_CURRENT = 1
+MCL_FUTURE = 2
+
+
+def freeze_gc() -> None:
+    """Collect once, move every object to the permanent generation and stop the cyclic collector:
+    no collection pause can hit a tick (the loop creates no reference cycles)."""
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+
+
+def set_fifo(priority: int = 50) -> str | None:
+    """SCHED_FIFO for the calling thread (children reset to normal scheduling). Warning or None."""
+    if not hasattr(os, "SCHED_FIFO"):
+        return "SCHED_FIFO is not available on this system: the loop runs at normal priority"
+    try:
+        policy = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
+        os.sched_setscheduler(0, policy, os.sched_param(priority))
+    except (PermissionError, OSError) as err:
+        return (f"SCHED_FIFO not permitted ({err.strerror}): the loop runs at normal priority. Fix: grant "
+                "rtprio (e.g. '@realtime - rtprio 95' in /etc/security/limits.conf) or CAP_SYS_NICE")
+    return None
+
+
+def lock_memory() -> str | None:
+    """mlockall(MCL_CURRENT | MCL_FUTURE): no page fault in a tick. Warning or None."""
+    name = ctypes.util.find_library("c")
+    try:
+        libc = ctypes.CDLL(name, use_errno=True)
+    except OSError:
+        return "cannot load libc to lock memory: page faults may delay ticks"
+    if libc.mlockall(MCL_CURRENT | MCL_FUTURE) != 0:
+        err = ctypes.get_errno()
+        return (f"mlockall failed ({os.strerror(err)}): page faults may delay ticks. Fix: raise the memlock "
+                "limit (ulimit -l unlimited, or 'memlock' in /etc/security/limits.conf)")
+    return None
+
+
+def pin_cpu(cpu: int | None = None) -> tuple[int | None, str | None]:
+    """Pin the calling thread to ``cpu`` (None: the last allowed CPU when there are ≥ 2)."""
+    try:
+        allowed = sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return None, "CPU affinity not available on this system"
+    if cpu is None:
+        if len(allowed) < 2:
+            return None, None
+        cpu = allowed[-1]
+    if cpu not in allowed:
+        return None, f"CPU {cpu} is not available to this process (allowed: {allowed}); not pinned"
+    try:
+        os.sched_setaffinity(0, {cpu})
+    except OSError as err:
+        return None, f"cannot pin to CPU {cpu} ({err.strerror}); not pinned"
+    return cpu, None
+
+
+def setup_realtime(enable: bool = True, priority: int = 50, cpu: int | None = None) -> tuple[list[str], list[str]]:
+    """Apply the real-time settings; returns (what was applied, warnings). ``enable=False``: GC only."""
+    freeze_gc()
+    applied = ["gc frozen and disabled"]
+    if not enable:
+        return applied, []
+    warnings: list[str] = []
+    fifo_warning = set_fifo(priority)
+    if fifo_warning:
+        warnings.append(fifo_warning)
+    else:
+        applied.append(f"SCHED_FIFO priority {priority}")
+        if cpu is not None:  # opt-in: on a shared machine a pinned task cannot flee a busy CPU
+            pinned, w = pin_cpu(cpu)
+            if w:
+                warnings.append(w)
+            if pinned is not None:
+                applied.append(f"pinned to CPU {pinned}")
+    mem_warning = lock_memory()
+    if mem_warning:
+        warnings.append(mem_warning)
+    else:
+        applied.append("memory locked")
+    return applied, warnings

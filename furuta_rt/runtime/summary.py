@@ -1,0 +1,78 @@
+"""The end-of-run summary: what the loop achieved (rate, jitter, latency, faults) and how well it balanced."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from furuta_rt.runtime.loop import LoopResult
+
+ENDINGS = {
+    "duration": "duration reached",
+    "operator_stop": "stopped by the operator",
+    "trip": "TRIPPED",
+    "error": "internal error",
+}
+
+
+def _num(x: float) -> float | None:
+    return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else float(x)
+
+
+def summary_dict(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path: str | None,
+                 warnings: list[str]) -> dict[str, Any]:
+    """All figures of the run as one JSON-able dict (``--summary-json``)."""
+    def hist(h: Any) -> dict[str, float | None]:
+        return {k: _num(v) for k, v in h.summary().items()}
+
+    return {
+        "rig": rig, "mode": mode, "rate_hz": rate_hz, "end": r.end, "trip_reason": r.trip_reason,
+        "trip_message": r.trip_message, "final_state": r.final_state,
+        "ticks": r.ticks, "balancing_ticks": r.balancing_ticks,
+        "balanced_s": r.balancing_ticks / rate_hz, "device_span_s": r.device_span_s, "host_span_s": r.host_span_s,
+        "achieved_rate_hz": _num(r.rate_hz), "device_rate_hz": _num(r.device_rate_hz),
+        "period_us": hist(r.period_us), "jitter_us": hist(r.jitter_us), "read_us": hist(r.read_us),
+        "update_us": hist(r.update_us), "write_us": hist(r.write_us), "latency_us": hist(r.latency_us),
+        "lateness_us": hist(r.lateness_us),
+        "overruns": r.overruns, "skipped_periods": r.skipped_periods, "late_commands": r.late_commands,
+        "device_overruns": r.device_overruns, "seq_gaps": r.seq_gaps, "crc_errors": r.crc_errors,
+        "dropped_log_messages": r.dropped_log_messages,
+        "std_theta": _num(r.theta.std), "std_phi": _num(r.phi.std), "std_u": _num(r.u.std),
+        "mean_u_comp": _num(r.u_comp.mean) if r.u_comp.n else None, "std_u_comp": _num(r.u_comp.std),
+        "log": log_path, "warnings": warnings,
+        "events": [{"wall_ns": t, "level": lvl, "message": m} for t, lvl, m in r.events],
+    }
+
+
+def _p(h: Any, unit: str = "µs") -> str:
+    if h.count == 0:
+        return "n/a"
+    return f"p50 {h.percentile(0.5):.0f}  p99 {h.percentile(0.99):.0f}  max {h.max:.0f} {unit}"
+
+
+def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path: str | None) -> str:
+    """The human-readable summary printed at the end of every run."""
+    nominal = 1e6 / rate_hz
+    ending = ENDINGS.get(r.end, r.end)
+    if r.end == "trip":
+        ending += f" ({r.trip_reason}): {r.trip_message}"
+    lines = [
+        f"furuta-rt run: rig {rig}, compensation {mode}, {rate_hz:g} Hz — {ending}",
+        f"  ticks {r.ticks} over {r.device_span_s:.3f} s device time; loop rate {r.rate_hz:.1f} Hz (host), "
+        f"{r.device_rate_hz:.1f} Hz (device); balanced {r.balancing_ticks / rate_hz:.2f} s",
+        f"  period jitter |T − {nominal:.0f} µs|: {_p(r.jitter_us)}",
+        f"  read {_p(r.read_us)};  update {_p(r.update_us)};  write {_p(r.write_us)}",
+        f"  latency sample→command: {_p(r.latency_us)};  tick start lateness: {_p(r.lateness_us)}",
+        f"  overruns {r.overruns} ({r.skipped_periods} periods skipped); device: late commands {r.late_commands}, "
+        f"own overruns {r.device_overruns}; seq gaps {r.seq_gaps}, CRC errors {r.crc_errors}, "
+        f"log drops {r.dropped_log_messages}",
+    ]
+    if r.theta.n > 1:
+        lines.append(
+            f"  balancing (after its first second): std θ {r.theta.std:.5f} rad, std φ {r.phi.std:.5f} rad, "
+            f"std u {r.u.std:.4f}, mean u_comp {r.u_comp.mean:+.4f}"
+        )
+    elif r.balancing_ticks == 0:
+        lines.append("  never balanced: the pendulum was not brought within the arming window (|θ| < arm_theta)")
+    lines.append(f"  log: {log_path} ({r.ticks} ticks)" if log_path else "  log: none (use --log FILE.mcap)")
+    return "\n".join(lines)

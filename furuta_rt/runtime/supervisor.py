@@ -1,0 +1,176 @@
+"""The safety supervisor: a pure state machine, idle → armed → balancing → tripped.
+
+No I/O, no clock: ``step`` gets one tick's measurement and link facts and returns the state the
+tick runs in. The loop obeys it: only ``balancing`` drives the actuator; every other state sends
+u = 0 with ENABLE clear, and ``tripped`` ends the run (the reason is kept and logged).
+
+    idle       waiting: the pendulum is not near upright, or the device has a latched fault
+    armed      |θ| < arm_theta, no fault: the controller was reset (Controller.reset(φ)) and the
+               observer tracks for ``settle_ticks`` ticks with u = 0; leaving the window → idle
+    balancing  u = L·x + F̂ is sent; trips on |θ| > theta_limit, |φ| > phi_limit, a device fault,
+               a non-finite value, ``max_consecutive_overruns`` commanded ticks in a row that each
+               missed their deadline
+    tripped    latched; u = 0; the run stops
+
+Link loss (no SAMPLE for more than ``link_loss_periods`` periods) and operator stops (SIGINT,
+SIGTERM) trip from any state via ``trip``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+
+from firmware_protocol import FAULT_MASK, StatusFlags
+from furuta_rt.config import SafetyConfig
+
+
+class State(IntEnum):
+    IDLE = 0
+    ARMED = 1
+    BALANCING = 2
+    TRIPPED = 3
+
+    @property
+    def label(self) -> str:
+        return self.name.lower()
+
+
+STATE_NAMES: tuple[str, ...] = tuple(s.label for s in State)
+"""Index → name, as logged in /furuta/tick ``state``."""
+
+_FAULT_MASK = int(FAULT_MASK)
+_OVERRANGE_FAULTS = int(StatusFlags.ADC_OVERRANGE | StatusFlags.ENCODER_ERROR)
+
+
+class TripReason:
+    """Stable identifiers of the trip causes (the event text adds the numbers)."""
+
+    THETA_LIMIT = "theta_limit"
+    PHI_LIMIT = "phi_limit"
+    LINK_LOSS = "link_loss"
+    SENSOR_FAULT = "sensor_fault"
+    DEVICE_FAULT = "device_fault"
+    NONFINITE = "nonfinite"
+    OVERRUNS = "overruns"
+    OPERATOR_STOP = "operator_stop"
+    ERROR = "error"
+
+
+@dataclass(frozen=True, slots=True)
+class Transition:
+    """A state change, for the events channel and the console."""
+
+    seq: int
+    old: State
+    new: State
+    reason: str
+    message: str
+
+
+@dataclass(frozen=True, slots=True)
+class SupervisorLimits:
+    theta_limit: float = 0.5
+    phi_limit: float = 6.0 * math.pi
+    arm_theta: float = 0.1
+    max_consecutive_overruns: int = 5
+    settle_ticks: int = 5
+
+    @classmethod
+    def from_config(cls, cfg: SafetyConfig, rate_hz: float) -> SupervisorLimits:
+        """Limits from the rig's [safety]; the armed window lasts ~10 ms."""
+        return cls(
+            theta_limit=cfg.theta_limit,
+            phi_limit=cfg.phi_limit,
+            arm_theta=cfg.arm_theta,
+            max_consecutive_overruns=cfg.max_consecutive_overruns,
+            settle_ticks=max(1, round(0.01 * rate_hz)),
+        )
+
+
+class Supervisor:
+    """Decides per tick in which state the controller runs. Latches the first trip."""
+
+    __slots__ = ("_late_run", "_settle", "limits", "reason", "state", "transitions")
+
+    def __init__(self, limits: SupervisorLimits) -> None:
+        self.limits = limits
+        self.state = State.IDLE
+        self.reason = ""
+        self._settle = 0
+        self._late_run = 0
+        self.transitions: list[Transition] = []
+
+    @property
+    def tripped(self) -> bool:
+        return self.state is State.TRIPPED
+
+    def _go(self, seq: int, new: State, reason: str, message: str) -> State:
+        self.transitions.append(Transition(seq, self.state, new, reason, message))
+        self.state = new
+        return new
+
+    def trip(self, seq: int, reason: str, message: str) -> bool:
+        """Trip now (link loss, operator stop, error). Returns False if already tripped."""
+        if self.state is State.TRIPPED:
+            return False
+        self.reason = reason
+        self._go(seq, State.TRIPPED, reason, message)
+        return True
+
+    def step(self, seq: int, theta: float, phi: float, status: int, late: bool | None) -> tuple[State, bool]:
+        """One tick: (state to run this tick in, whether to reset the controller first).
+
+        ``status`` is the SAMPLE's device flags. ``late``: this tick is an overrun (True) or on time
+        (False); None for a stale tick that gets no command (it neither counts nor breaks a run of
+        overruns: one host stall is one overrun however many periods it skipped).
+        """
+        s = self.state
+        if s is State.TRIPPED:
+            return s, False
+        lim = self.limits
+        if not (math.isfinite(theta) and math.isfinite(phi)):
+            self.trip(seq, TripReason.NONFINITE, f"non-finite measurement θ={theta} φ={phi}")
+            return State.TRIPPED, False
+        if s is State.IDLE:
+            if status & _FAULT_MASK == 0 and abs(theta) < lim.arm_theta and abs(phi) < lim.phi_limit:
+                self._settle = 0
+                self._late_run = 0
+                self._go(seq, State.ARMED, "arm", f"armed: |θ| = {abs(theta):.3f} rad < {lim.arm_theta:g} rad")
+                return State.ARMED, True
+            return s, False
+        # armed or balancing: the actuator is (about to be) ours, so every fault trips
+        if abs(phi) > lim.phi_limit:
+            self.trip(seq, TripReason.PHI_LIMIT, f"|φ| = {abs(phi):.3f} rad beyond the cable limit {lim.phi_limit:g} rad")
+            return State.TRIPPED, False
+        if status & _FAULT_MASK:
+            flags = StatusFlags(status & _FAULT_MASK)
+            reason = TripReason.SENSOR_FAULT if status & _OVERRANGE_FAULTS else TripReason.DEVICE_FAULT
+            self.trip(seq, reason, f"device reports {flags!s} (status {status:#06x})")
+            return State.TRIPPED, False
+        if s is State.ARMED:
+            if abs(theta) >= lim.arm_theta:
+                self._go(seq, State.IDLE, "disarm", f"disarmed: |θ| = {abs(theta):.3f} rad left the arming window")
+                return State.IDLE, False
+            self._settle += 1
+            if self._settle >= lim.settle_ticks:
+                self._go(seq, State.BALANCING, "balance", "balancing")
+                return State.BALANCING, False
+            return s, False
+        # balancing
+        if abs(theta) > lim.theta_limit:
+            self.trip(seq, TripReason.THETA_LIMIT, f"|θ| = {abs(theta):.3f} rad beyond the limit {lim.theta_limit:g} rad")
+            return State.TRIPPED, False
+        if late:
+            self._late_run += 1
+            if self._late_run >= lim.max_consecutive_overruns:
+                self.trip(seq, TripReason.OVERRUNS, f"{self._late_run} consecutive ticks missed their deadline")
+                return State.TRIPPED, False
+        elif late is not None:
+            self._late_run = 0
+        return s, False
+
+    def command_not_finite(self, seq: int, u: float) -> None:
+        """The controller produced a non-finite command: trip (the loop sends u = 0 instead)."""
+        self.trip(seq, TripReason.NONFINITE, f"controller output u = {u} is not finite")
