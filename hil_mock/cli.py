@@ -1,0 +1,149 @@
+"""``hil-mock``: serve the simulated rig's DAQ on a pseudo-terminal until stopped.
+
+    hil-mock --pty [--config FILE] [--effect arm_coulomb.Fc=0.3 ...] [--rate HZ] [--fault reset@3 ...]
+
+Prints exactly one line on stdout, ``hil-mock: serving on /dev/pts/N``, flushed, then serves until
+SIGINT/SIGTERM (or ``--duration``, or a ``disconnect`` fault) and prints its statistics on stderr.
+SIGUSR1 prints the statistics without stopping; SIGUSR2 resets the device (as ``--fault reset@…``).
+Bad input → one line on stderr, exit 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from furuta_rt.errors import UserError
+from hil_mock.config import MockConfig, build_config
+from hil_mock.device import VirtualDevice
+
+SERVING_PREFIX = "hil-mock: serving on "
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="hil-mock",
+        description="Simulated Furuta pendulum DAQ speaking firmware_protocol on a pseudo-terminal.",
+    )
+    p.add_argument("--pty", action="store_true", help="serve on a new pseudo-terminal (the only mode; default)")
+    p.add_argument("--config", metavar="FILE", help="mock TOML file (rig, [effects], [device], [faults])")
+    p.add_argument("--rig", help="rig TOML file or shipped rig (overrides the file's 'rig'; default thesis)")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME.PARAM=VALUE",
+                   help="add an effect, e.g. arm_coulomb.Fc=0.3 (repeatable; overrides the file)")
+    p.add_argument("--rate", type=int, metavar="HZ", help="sample rate (default: the rig's control.rate_hz)")
+    p.add_argument("--watchdog-ms", type=int, metavar="MS", help="device watchdog (default 20)")
+    p.add_argument("--seed", type=int, help="sensor-noise seed (default 0)")
+    p.add_argument("--initial-theta", type=float, metavar="RAD", help="pendulum angle at release (default 0.05)")
+    p.add_argument("--substep-hz", type=float, metavar="HZ", help="physics substep rate (default 10000)")
+    p.add_argument("--pacing", choices=("realtime", "free", "lockstep"), help="default realtime")
+    p.add_argument("--spin-us", type=float, metavar="US", help="busy-wait before each deadline (default 100)")
+    p.add_argument("--priority", choices=("normal", "realtime"),
+                   help="realtime (default): SCHED_FIFO for the device thread if permitted, else nice -10")
+    p.add_argument("--fault", action="append", default=[], metavar="KIND@T[:DUR]",
+                   help="scheduled fault, e.g. stall@2.0:100ms, reset@3, disconnect@5, mute@1:50ms, deaf@1:50ms")
+    p.add_argument("--corrupt-rate", type=float, metavar="P", help="flip a bit in each device→host byte with probability P")
+    p.add_argument("--drop-rate", type=float, metavar="P", help="drop each device→host byte with probability P")
+    p.add_argument("--rx-corrupt-rate", type=float, metavar="P", help="the same for host→device bytes")
+    p.add_argument("--rx-drop-rate", type=float, metavar="P", help="the same for host→device bytes")
+    p.add_argument("--delay-ms", type=float, metavar="MS", help="hold outgoing frames this long")
+    p.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the pty (removed on exit)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds of wall time")
+    p.add_argument("--stats-json", metavar="FILE", help="write the final statistics as JSON to FILE")
+    return p
+
+
+def config_from_args(args: argparse.Namespace) -> MockConfig:
+    return build_config(
+        args.config,
+        rig=args.rig,
+        effects=args.effect,
+        faults=args.fault,
+        device={
+            "rate_hz": args.rate, "watchdog_ms": args.watchdog_ms, "seed": args.seed,
+            "initial_theta": args.initial_theta, "substep_hz": args.substep_hz, "pacing": args.pacing,
+            "spin_us": args.spin_us, "priority": args.priority,
+        },
+        fault_settings={
+            "corrupt_rate": args.corrupt_rate, "drop_rate": args.drop_rate, "rx_corrupt_rate": args.rx_corrupt_rate,
+            "rx_drop_rate": args.rx_drop_rate, "delay_ms": args.delay_ms,
+        },
+    )
+
+
+def _make_link(link: str, port: str) -> Path:
+    path = Path(link)
+    if path.is_symlink():
+        path.unlink()
+    elif path.exists():
+        raise UserError(f"--link {link}: exists and is not a symlink; choose another path")
+    try:
+        path.symlink_to(port)
+    except OSError as err:
+        raise UserError(f"--link {link}: cannot create the symlink ({err.strerror})") from None
+    return path
+
+
+def serve(args: argparse.Namespace) -> int:
+    cfg = config_from_args(args)
+    try:
+        device = VirtualDevice(cfg)
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    link = _make_link(args.link, device.port) if args.link else None
+
+    def on_stop(signum: int, frame: object) -> None:
+        device.request_stop()
+
+    def on_usr1(signum: int, frame: object) -> None:
+        print(device.stats.summary(), file=sys.stderr, flush=True)
+
+    def on_usr2(signum: int, frame: object) -> None:
+        device.reset()
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, on_stop)
+        signal.signal(signal.SIGTERM, on_stop)
+        signal.signal(signal.SIGUSR1, on_usr1)
+        signal.signal(signal.SIGUSR2, on_usr2)
+    timer = threading.Timer(args.duration, device.request_stop) if args.duration else None
+    print(f"{SERVING_PREFIX}{device.port}", flush=True)
+    try:
+        if timer is not None:
+            timer.daemon = True
+            timer.start()
+        device.run()
+    finally:
+        if timer is not None:
+            timer.cancel()
+        device.stop()
+        if link is not None:
+            with contextlib.suppress(OSError):
+                link.unlink()
+    stats = device.stats
+    print(stats.summary(), file=sys.stderr, flush=True)
+    if args.stats_json:
+        Path(args.stats_json).write_text(json.dumps(stats.as_dict(), indent=2) + "\n")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return serve(args)
+    except UserError as err:
+        print(f"hil-mock: error: {err}", file=sys.stderr)
+        return err.exit_code
+    except BrokenPipeError:
+        with contextlib.suppress(OSError):
+            os.close(sys.stdout.fileno())
+        return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,463 @@
+"""VirtualDevice: the firmware (hil_mock.firmware) served over a raw pseudo-terminal in real time.
+
+The loop, once per timer period (pacing "realtime"):
+
+    wait for the absolute deadline t_base + device clock (sleep, then a short spin)
+    if a whole period or more late: the skipped timer periods run the plant with the output held,
+        TICK_OVERRUN is reported, seq is NOT skipped (as an MCU timer ISR that overran)
+    scheduled faults due → applied
+    read everything the host sent (non-blocking), through the link faults, into the firmware
+    firmware tick (SAMPLE out, COMMAND applied, plant advanced one period)
+    frames out through the link faults and the optional delay line, written non-blocking
+
+Pacing "free" runs streaming ticks back to back (benchmarks); "lockstep" starts each streaming tick as
+soon as the COMMAND answering the previous SAMPLE arrived (deterministic runs on a loaded machine;
+after 1 s without an answer it falls back to real time until a COMMAND is applied). Idle, both pace
+in real time. Timing statistics cover streaming ticks only.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import queue
+import select
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from furuta_rt.model.rig import RigModel
+from hil_mock.config import MockConfig
+from hil_mock.faults import FaultEvent, LinkFaults
+from hil_mock.firmware import Firmware
+from hil_mock.ptyport import open_raw_pty
+from hil_mock.timing import TickTiming, raise_priority, set_timer_slack, wait_until
+
+TX_BACKLOG_MAX = 4096
+"""Bytes the device buffers when the host does not read; beyond it whole frames are dropped (TX_OVERFLOW)."""
+LOCKSTEP_TIMEOUT_S = 1.0
+IN_PROCESS_SWITCH_INTERVAL_S = 2e-4
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceStats:
+    """Snapshot of the device's counters and timing (times in µs unless named _s)."""
+
+    rate_hz: int
+    pacing: str
+    priority: str
+    ticks: int
+    samples_sent: int
+    late_ticks: int
+    late_threshold_us: float
+    overruns: int
+    missed_periods: int
+    worst_lateness_us: float
+    mean_lateness_us: float
+    p99_lateness_us: float
+    worst_work_us: float
+    mean_work_us: float
+    commands_rx: int
+    commands_applied: int
+    commands_discarded: int
+    watchdog_trips: int
+    crc_errors: int
+    frame_errors: int
+    frames_rx: int
+    status_sent: int
+    handshakes: int
+    handshakes_refused: int
+    hangups: int
+    resets: int
+    stalls: int
+    tx_frames_dropped: int
+    tx_bytes_corrupted: int
+    tx_bytes_dropped: int
+    rx_bytes_corrupted: int
+    rx_bytes_dropped: int
+    wall_s: float
+    plant_s: float
+
+    @property
+    def realtime_factor(self) -> float:
+        return self.plant_s / self.wall_s if self.wall_s > 0 else 0.0
+
+    def as_dict(self) -> dict[str, Any]:
+        return {**asdict(self), "realtime_factor": self.realtime_factor}
+
+    def summary(self) -> str:
+        """Human-readable block, as printed by ``hil-mock`` on exit."""
+        return "\n".join((
+            f"hil-mock: {self.ticks} ticks at {self.rate_hz} Hz ({self.pacing}, {self.priority} priority), "
+            f"{self.samples_sent} SAMPLEs, plant {self.plant_s:.3f} s in {self.wall_s:.3f} s wall",
+            f"hil-mock: timing: late ticks {self.late_ticks} (> {self.late_threshold_us:.0f} µs), overruns "
+            f"{self.overruns} ({self.missed_periods} periods skipped), lateness worst {self.worst_lateness_us:.0f} µs "
+            f"mean {self.mean_lateness_us:.1f} µs p99 < {self.p99_lateness_us:g} µs, work worst "
+            f"{self.worst_work_us:.0f} µs mean {self.mean_work_us:.1f} µs",
+            f"hil-mock: link: commands rx {self.commands_rx} applied {self.commands_applied} discarded "
+            f"{self.commands_discarded}, watchdog trips {self.watchdog_trips}, rx frames {self.frames_rx} crc errors "
+            f"{self.crc_errors} frame errors {self.frame_errors}, handshakes {self.handshakes} (refused "
+            f"{self.handshakes_refused}), hangups {self.hangups}, tx frames dropped {self.tx_frames_dropped}",
+            f"hil-mock: faults: resets {self.resets}, stalls {self.stalls}, tx bytes corrupted "
+            f"{self.tx_bytes_corrupted} dropped {self.tx_bytes_dropped}, rx bytes corrupted {self.rx_bytes_corrupted} "
+            f"dropped {self.rx_bytes_dropped}",
+        ))
+
+
+class VirtualDevice:
+    """The simulated rig's DAQ on a pseudo-terminal. ``port`` is the path a host opens.
+
+    Use ``start()``/``stop()`` (background thread) or ``with VirtualDevice(cfg) as dev:``; ``run()``
+    serves in the calling thread until ``stop()`` (from another thread or a signal handler).
+    Fault methods (``stall``, ``reset``, ``disconnect``, ``mute``, ``deafen``) are thread-safe and act
+    at the next tick; ``link`` holds the live byte-fault rates.
+    """
+
+    def __init__(self, config: MockConfig | None = None) -> None:
+        self.config = config or MockConfig()
+        rig = self.config.load_rig()
+        model = RigModel.from_config(rig, self.config.effects)
+        self.rig = rig
+        dev = self.config.device
+        self.firmware = Firmware(rig, model, dev, self.config.rate_hz(rig))
+        f = self.config.faults
+        self.link = LinkFaults(f.corrupt_rate, f.drop_rate, f.rx_corrupt_rate, f.rx_drop_rate, f.seed)
+        self.delay_s = f.delay_ms / 1000.0
+        self.pacing = dev.pacing
+        self._spin_s = dev.spin_us * 1e-6
+        self._events: list[FaultEvent] = f.events()
+        self._actions: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
+        self._delayed: deque[tuple[float, bytes]] = deque()
+        self._backlog = bytearray()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._saved_switch: float | None = None
+        self._fd: int | None = None
+        self.port = ""
+        self.connected = False
+        self.disconnected = False
+        self.tx_frames_dropped = 0
+        self.stalls = 0
+        self.priority = "normal"
+        threshold = dev.late_threshold_us * 1e-6 if dev.late_threshold_us else 0.25 / self.firmware.rate_hz
+        self.timing = TickTiming(threshold)
+        self._t_start = 0.0
+        self._t_end: float | None = None
+        self._fd, self.port = open_raw_pty()
+
+    # ------------------------------------------------------------ lifecycle
+    def start(self) -> VirtualDevice:
+        """Serve in a background thread; returns self."""
+        if self._thread is not None:
+            raise RuntimeError("VirtualDevice already started")
+        # A busy host thread in this process would hold the GIL for up to the switch interval (5 ms by
+        # default) whenever the device thread wakes up; 0.2 ms keeps in-process ticks on time.
+        self._saved_switch = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._saved_switch, IN_PROCESS_SWITCH_INTERVAL_S))
+        self._thread = threading.Thread(target=self.run, name=f"hil-mock {self.port}", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Stop serving, zero the output, close the pty (the host sees a hang-up)."""
+        self._stop.set()
+        thread = self._thread
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout)
+        if thread is None or not thread.is_alive():
+            self._close()
+        if self._saved_switch is not None:
+            sys.setswitchinterval(self._saved_switch)
+            self._saved_switch = None
+
+    def request_stop(self) -> None:
+        """Ask ``run()`` to return after the current tick (safe from a signal handler)."""
+        self._stop.set()
+
+    def __enter__(self) -> VirtualDevice:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def _close(self) -> None:
+        fd, self._fd = self._fd, None
+        if fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        if self._t_end is None:
+            self._t_end = time.perf_counter()
+
+    # ------------------------------------------------------------ faults (any thread)
+    def stall(self, seconds: float) -> None:
+        """The firmware hangs for ``seconds``: no ticks, reads or writes; the plant runs on, output held."""
+        self._actions.put(lambda: self._do_stall(seconds))
+
+    def reset(self) -> None:
+        """Reboot: output zero, faults and configuration cleared, idle until a new HELLO (seq from 0)."""
+        self._actions.put(self._do_reset)
+
+    def disconnect(self) -> None:
+        """Close the pty master: the host's port reads EOF/fails; the device stops serving."""
+        self._actions.put(self._do_disconnect)
+
+    def mute(self, seconds: float) -> None:
+        """Lose every device→host byte for ``seconds``."""
+        self._actions.put(lambda: self._timed_flag("muted", seconds))
+
+    def deafen(self, seconds: float) -> None:
+        """Lose every host→device byte for ``seconds``."""
+        self._actions.put(lambda: self._timed_flag("deafened", seconds))
+
+    def _do_stall(self, seconds: float) -> None:
+        self.stalls += 1
+        time.sleep(seconds)
+        fw = self.firmware
+        fw.skip(round(seconds * 1e9 / fw.period_ns))
+
+    def _do_reset(self) -> None:
+        self.firmware.reboot()
+        self._delayed.clear()
+        self._backlog.clear()
+
+    def _do_disconnect(self) -> None:
+        self.firmware.hangup()
+        self.disconnected = True
+        self._close()
+        self._stop.set()
+
+    def _timed_flag(self, name: str, seconds: float) -> None:
+        setattr(self.link, name, True)
+        self._events.append(FaultEvent(f"end_{name}", self.firmware.plant_time + seconds))
+        self._events.sort(key=lambda e: e.at)
+
+    def _run_due_events(self) -> None:
+        fw = self.firmware
+        if fw.plant_start_ns is None:
+            return
+        now = fw.plant_time
+        while self._events and self._events[0].at <= now:
+            ev = self._events.pop(0)
+            if ev.kind == "stall":
+                self._do_stall(ev.duration)
+            elif ev.kind == "reset":
+                self._do_reset()
+            elif ev.kind == "disconnect":
+                self._do_disconnect()
+            elif ev.kind == "mute":
+                self._timed_flag("muted", ev.duration)
+            elif ev.kind == "deaf":
+                self._timed_flag("deafened", ev.duration)
+            elif ev.kind.startswith("end_"):
+                setattr(self.link, ev.kind[4:], False)
+
+    # ------------------------------------------------------------ I/O
+    def _read(self) -> None:
+        fd = self._fd
+        if fd is None:
+            return
+        fw = self.firmware
+        while True:
+            try:
+                data = os.read(fd, 4096)
+            except BlockingIOError:
+                self.connected = True
+                return
+            except OSError as err:
+                if err.errno == errno.EIO:  # no host has the port open
+                    if self.connected:
+                        self.connected = False
+                        self._hangup()
+                    return
+                raise
+            if not data:
+                return
+            self.connected = True
+            if self.link.active:
+                data = self.link.rx(data)
+            fw.receive(data)
+
+    def _hangup(self) -> None:
+        self.firmware.hangup()
+        self._delayed.clear()
+        self._backlog.clear()
+
+    def _write(self, now: float) -> None:
+        fw = self.firmware
+        link = self.link
+        if fw.tx:
+            for frame in fw.tx:
+                wire = link.tx(frame) if link.active else frame
+                if self.delay_s:
+                    self._delayed.append((now + self.delay_s, wire))
+                else:
+                    self._queue_wire(wire)
+            fw.tx.clear()
+        delayed = self._delayed
+        while delayed and delayed[0][0] <= now:
+            self._queue_wire(delayed.popleft()[1])
+        if self._backlog and self._fd is not None:
+            try:
+                n = os.write(self._fd, self._backlog)
+            except BlockingIOError:
+                return
+            except OSError as err:
+                if err.errno != errno.EIO:
+                    raise
+                self._backlog.clear()
+                return
+            del self._backlog[:n]
+
+    def _queue_wire(self, wire: bytes) -> None:
+        if len(self._backlog) + len(wire) > TX_BACKLOG_MAX:
+            self.tx_frames_dropped += 1
+            self.firmware.note_tx_overflow()
+        else:
+            self._backlog += wire
+
+    def _wait_readable(self, timeout: float) -> bool:
+        fd = self._fd
+        if fd is None:
+            return False
+        try:
+            r, _, _ = select.select([fd], [], [], timeout)
+        except (OSError, ValueError):
+            return False
+        return bool(r)
+
+    # ------------------------------------------------------------ loop
+    def run(self) -> None:
+        """Serve until ``stop()`` or a disconnect fault (blocking)."""
+        set_timer_slack()
+        if self.config.device.priority == "realtime" and self.pacing != "free":  # free-running must not hog a core
+            self.priority = raise_priority()
+        fw = self.firmware
+        timing = self.timing
+        pc = time.perf_counter
+        spin = self._spin_s
+        self._t_start = t_base = pc() - fw.clock_ns * 1e-9
+        self._t_end = None
+        realtime = True
+        lockstep_ok = True
+        applied_seen = 0
+        stop = self._stop
+        actions = self._actions
+        try:
+            while not stop.is_set():
+                while not actions.empty():
+                    actions.get_nowait()()
+                if self._events:
+                    self._run_due_events()
+                if self._fd is None:
+                    break
+                streaming = fw.streaming
+                if realtime:
+                    deadline = t_base + fw.clock_ns * 1e-9
+                    wait_until(deadline, spin if streaming else 0.0)
+                    now = pc()
+                    lateness = now - deadline
+                    period = fw.period_ns * 1e-9
+                    if lateness >= period:
+                        missed = int(lateness / period)
+                        fw.skip(missed)
+                        if streaming:
+                            timing.overruns += 1
+                            timing.missed_periods += missed
+                else:
+                    now = pc()
+                    t_base = now - fw.clock_ns * 1e-9
+                    lateness = 0.0
+                self._read()
+                streaming = fw.streaming
+                fw.tick()
+                self._write(now)
+                if streaming:
+                    timing.record(lateness, pc() - now)
+                if self.pacing == "realtime" or not fw.streaming or not self.connected:
+                    realtime = True
+                elif self.pacing == "free":
+                    realtime = False
+                else:  # lockstep: wait for the COMMAND answering the SAMPLE just sent
+                    if fw.commands_applied != applied_seen:
+                        applied_seen = fw.commands_applied
+                        lockstep_ok = True
+                    if lockstep_ok:
+                        lockstep_ok = self._await_answer(pc() + LOCKSTEP_TIMEOUT_S)
+                        if not lockstep_ok:  # waited in vain: the next tick is due now, not 1 s ago
+                            t_base = pc() - fw.clock_ns * 1e-9
+                    realtime = not lockstep_ok
+        finally:
+            fw.hangup()
+            self._close()
+
+    def _await_answer(self, until: float) -> bool:
+        fw = self.firmware
+        while not fw.answered:
+            if self._stop.is_set() or self._fd is None:
+                return True
+            remaining = until - time.perf_counter()
+            if remaining <= 0:
+                return False
+            if self._delayed:  # frames held by the delay fault still have to go out
+                self._write(time.perf_counter())
+                remaining = min(remaining, 0.001)
+            if self._wait_readable(min(remaining, 0.05)):
+                self._read()
+                if not self.connected:
+                    return False
+        return True
+
+    # ------------------------------------------------------------ stats
+    @property
+    def stats(self) -> DeviceStats:
+        fw = self.firmware
+        t = self.timing
+        d = fw.decoder
+        link = self.link
+        end = self._t_end if self._t_end is not None else time.perf_counter()
+        n = max(t.ticks, 1)
+        return DeviceStats(
+            rate_hz=fw.rate_hz,
+            pacing=self.pacing,
+            priority=self.priority,
+            ticks=t.ticks,
+            samples_sent=fw.samples_sent,
+            late_ticks=t.late_ticks,
+            late_threshold_us=t.late_threshold_s * 1e6,
+            overruns=t.overruns,
+            missed_periods=t.missed_periods,
+            worst_lateness_us=t.worst_lateness_s * 1e6,
+            mean_lateness_us=t.sum_lateness_s / n * 1e6,
+            p99_lateness_us=t.percentile_us(0.99),
+            worst_work_us=t.worst_work_s * 1e6,
+            mean_work_us=t.sum_work_s / n * 1e6,
+            commands_rx=fw.commands_rx,
+            commands_applied=fw.commands_applied,
+            commands_discarded=fw.commands_discarded,
+            watchdog_trips=fw.watchdog_trips,
+            crc_errors=d.crc_errors,
+            frame_errors=d.errors - d.crc_errors,
+            frames_rx=d.frames_ok,
+            status_sent=fw.status_sent,
+            handshakes=fw.handshakes,
+            handshakes_refused=fw.handshakes_refused,
+            hangups=fw.hangups,
+            resets=fw.reboots,
+            stalls=self.stalls,
+            tx_frames_dropped=self.tx_frames_dropped,
+            tx_bytes_corrupted=link.tx_corrupted,
+            tx_bytes_dropped=link.tx_dropped,
+            rx_bytes_corrupted=link.rx_corrupted,
+            rx_bytes_dropped=link.rx_dropped,
+            wall_s=max(end - self._t_start, 0.0) if self._t_start else 0.0,
+            plant_s=fw.plant_time,
+        )
