@@ -1,0 +1,328 @@
+"""`diagnose`: locate the mismatch between eq. 4 and a recording, name the missing physics, fit it, and
+show the fit improve.
+
+Pipeline (every physical model from furuta_rt.model / furuta_rt.sim):
+
+1. signals — the recording on a grid, θ reconstructed through the inverse Bessel path, everything
+   (states, accelerations, the held command) seen through one Gaussian kernel;
+2. select — per equation of eq. 4 (arm, pendulum), forward selection of named effects on held-out
+   time blocks, with significance and admissibility checks (furuta_rt.diagnose.select);
+3. refit — the nonlinear parameters (delay, deadzone, saturation, ΔJ) re-profiled jointly with the others;
+4. look-alikes — each selected effect against its look-alike: if the data cannot tell them apart,
+   both are reported with the experiment that would;
+5. verify — multi-step prediction of the nominal and the augmented model on the last part of the
+   recording with parameters fitted on the first part, and closed-loop re-simulation statistics.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from furuta_rt.config import RigConfig
+from furuta_rt.diagnose import verify
+from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, Context
+from furuta_rt.diagnose.locate import Location, describe, locate
+from furuta_rt.diagnose.select import EquationModel, Evaluation, Spec, Thresholds
+from furuta_rt.diagnose.signals import prepare
+from furuta_rt.model.effects import Effects
+from furuta_rt.recording import Recording
+
+EXPERIMENTS: dict[frozenset[str], str] = {
+    frozenset({"arm_coulomb", "input_deadzone"}): (
+        "a slow constant-velocity arm sweep (Coulomb friction needs the torque Fc at any speed, a deadzone lets "
+        "the arm coast with |u| below the width) or a dither on u (it smooths a deadzone, not friction)"
+    ),
+    frozenset({"input_gain", "arm_inertia"}): (
+        "a static torque test (a known command with the arm held against a force gauge measures the gain alone) "
+        "or a repeat with a known inertia added to the arm"
+    ),
+    frozenset({"pendulum_viscous", "pendulum_coulomb"}): (
+        "a pendulum free decay from a large angle (viscous damping: exponential envelope; Coulomb: linear)"
+    ),
+    frozenset({"theta_offset", "arm_spring"}): (
+        "a pendulum free decay (it comes to rest hanging at θ = π + offset: a sensor offset shows there, a cable "
+        "spring does not) and a slow arm sweep (a spring needs the torque k(φ − φ0))"
+    ),
+}
+
+
+@dataclass(frozen=True)
+class Options:
+    sigma_arm: float = 0.03  # s, Gaussian width for the arm equation
+    sigma_pend: float = 0.03  # s, for the pendulum equation
+    sigma_fine: float = 0.005  # s, for nonlinear regressors (signs) and initial states
+    thresholds: Thresholds = field(default_factory=Thresholds)
+    horizon: float = 0.3  # s, prediction window
+    holdout: float = 0.3  # last fraction of the recording kept out of the fit for the prediction metric
+    max_windows: int = 40
+    closed_loop: bool = True
+    substep_hz: float = 2000.0  # physics substeps of the verification simulations
+    ambiguity_t: float = 3.0  # paired t on the blocks above which two look-alikes are told apart
+    seed: int = 0
+
+
+@dataclass
+class Found:
+    name: str
+    equation: str
+    params: dict[str, float]
+    se: dict[str, float]
+    t: float
+    cv_gain: float  # held-out error reduction this effect brings (relative, given the others)
+
+    def as_json(self) -> dict:
+        return {"name": self.name, "params": self.params}
+
+
+@dataclass
+class EquationResult:
+    equation: str
+    rows: int
+    nominal: Evaluation
+    selected: Evaluation
+    trace: list[dict]
+    location: Location
+
+    @property
+    def gain(self) -> float:
+        return (self.nominal.cv - self.selected.cv) / self.nominal.cv if self.nominal.cv else 0.0
+
+
+@dataclass
+class Diagnosis:
+    effects: list[Found]
+    fit: dict
+    located: str
+    ambiguities: list[dict]
+    lookalikes: list[dict]
+    equations: dict[str, EquationResult]
+    closed_loop: dict | None
+    notes: list[str]
+    seconds: float
+    rig: str
+    context: Context = field(repr=False)
+    models: dict[str, EquationModel] = field(default_factory=dict, repr=False)
+    prediction: dict = field(default_factory=dict, repr=False)  # starts, horizon, train effects (for figures)
+
+    @property
+    def names(self) -> list[str]:
+        return [e.name for e in self.effects]
+
+    def found_effects(self) -> Effects:
+        return effects_of(self.effects)
+
+    def to_json(self) -> dict:
+        return {
+            "effects": [e.as_json() for e in self.effects],
+            "fit": {k: self.fit[k] for k in ("metric", "nominal", "augmented")},
+            "located": self.located,
+            "ambiguities": self.ambiguities,
+            "lookalikes": self.lookalikes,
+            "evidence": [
+                {"name": e.name, "equation": e.equation, "cv_gain": e.cv_gain, "t": e.t, "se": e.se} for e in self.effects
+            ],
+            "fit_details": {k: v for k, v in self.fit.items() if k not in ("metric", "nominal", "augmented")},
+            "closed_loop": self.closed_loop,
+            "equations": {
+                eq: {
+                    "rows": r.rows, "nominal_rms": r.nominal.fit.cv_rms, "augmented_rms": r.selected.fit.cv_rms,
+                    "cv_gain": r.gain, "relative_residual": r.location.relative_rms,
+                    "correlations": r.location.correlations, "regions": r.location.regions,
+                }
+                for eq, r in self.equations.items()
+            },
+            "notes": self.notes,
+            "rig": self.rig,
+            "seconds": self.seconds,
+        }
+
+
+def effects_of(found: list[Found]) -> Effects:
+    return Effects.model_validate({f.name: f.params for f in found})
+
+
+# ------------------------------------------------------------------------------------ stages
+def refit(em: EquationModel, spec: Spec) -> Evaluation:
+    """The effects of ``spec`` fitted on ``em``'s rows: each nonlinear parameter re-profiled with the others
+    at their current values (one pass of coordinate descent), then the linear ones by least squares."""
+    nl_t: dict[str, float] = {}
+    nl_se: dict[str, dict[str, float]] = {}
+    for name in spec.effects:
+        if CANDIDATES[name].nonlinear:
+            ev = em.evaluate_with(spec.without(name), name)
+            spec = ev.spec
+            nl_t[name] = ev.t_stat[name]
+            nl_se[name] = ev.se[name]
+    final = em.evaluate(spec)
+    final.t_stat.update(nl_t)
+    final.se.update(nl_se)
+    return final
+
+
+def _paired_t(a: np.ndarray, b: np.ndarray) -> float:
+    d = a - b
+    sd = float(np.std(d, ddof=1)) if len(d) > 1 else 0.0
+    return float(np.sum(d) / (np.sqrt(len(d)) * sd)) if sd > 0 else np.inf
+
+
+def check_lookalikes(
+    ems: dict[str, EquationModel], res: dict[str, EquationResult], opts: Options
+) -> tuple[list[dict], list[dict]]:
+    """(ambiguities, look-alikes told apart) for the selected effects."""
+    ambiguous: list[dict] = []
+    apart: list[dict] = []
+    selected = {n: eq for eq, r in res.items() for n in r.selected.spec.effects}
+    for name, eq in selected.items():
+        r = res[eq]
+        for other in CANDIDATES[name].lookalikes:
+            pair = frozenset({name, other})
+            if other in selected or any(set(a["effects"]) == pair for a in ambiguous + apart):
+                continue
+            experiment = EXPERIMENTS.get(pair, "")
+            if CANDIDATES[other].equation != eq:  # the two act in different equations of eq. 4
+                em_o = ems[CANDIDATES[other].equation]
+                ev_o = em_o.evaluate_with(res[CANDIDATES[other].equation].selected.spec, other)
+                gain_o = (res[CANDIDATES[other].equation].selected.cv - ev_o.cv) / res[CANDIDATES[other].equation].selected.cv
+                apart.append({
+                    "effects": [name, other], "reported": name,
+                    "reason": f"{name} acts in the {eq} equation, where the mismatch is; {other} would act in the "
+                              f"{CANDIDATES[other].equation} equation and improves it by {100 * max(gain_o, 0):.2f} % only",
+                    "experiment": experiment,
+                })
+                continue
+            alt = ems[eq].evaluate_with(r.selected.spec.without(name), other)
+            t = _paired_t(alt.fit.cv_block, r.selected.fit.cv_block)
+            plausible = CANDIDATES[other].plausible(alt.params[other], ems[eq].ctx.rig)
+            rel = (alt.cv - r.selected.cv) / r.selected.cv
+            if plausible and t < opts.ambiguity_t and alt.t_stat.get(other, 0.0) >= opts.thresholds.t_min:
+                ambiguous.append({
+                    "effects": [name, other], "reported": name,
+                    "alternative": {"name": other, "params": alt.params[other]},
+                    "cv_difference": rel, "paired_t": t,
+                    "reason": f"the data fits {other} almost as well ({100 * rel:+.2f} % held-out error, paired t = {t:.1f})",
+                    "experiment": experiment,
+                })
+            else:
+                apart.append({
+                    "effects": [name, other], "reported": name,
+                    "reason": f"{other} in its place fits worse ({100 * rel:+.2f} % held-out error, paired t = {t:.1f})"
+                              if plausible else f"{other} in its place needs implausible values {alt.params[other]}",
+                    "experiment": experiment,
+                })
+    return ambiguous, apart
+
+
+def _windows(prep, start_frac: float, horizon: int, max_windows: int) -> list[int]:
+    v = np.flatnonzero(prep.valid)
+    a = v[0] + int((v[-1] - v[0]) * (1 - start_frac))
+    span = v[-1] - horizon - a
+    if span <= 0:
+        return []
+    spacing = max(horizon // 2, span // max_windows)
+    return verify.window_starts(prep, a, v[-1], horizon, spacing)
+
+
+def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> Diagnosis:
+    """Diagnose ``rec`` against ``rig`` (see the module docstring)."""
+    opts = options or Options()
+    t0 = time.perf_counter()
+    prep = prepare(rec, rig)
+    ctx = Context.build(prep, rig, opts.sigma_arm, opts.sigma_pend, opts.sigma_fine)
+    notes: list[str] = []
+    ems: dict[str, EquationModel] = {}
+    res: dict[str, EquationResult] = {}
+    for eq in (ARM, PEND):
+        em = EquationModel(ctx, eq, opts.thresholds)
+        ems[eq] = em
+        nominal, selected, trace = em.select()
+        if selected.spec.effects:
+            selected = refit(em, selected.spec)
+        loc = locate(ctx, eq, em.target(Spec(eq)), em.row_mask)
+        res[eq] = EquationResult(eq, em.n_rows, nominal, selected, trace, loc)
+        if em.n_rows < 20 * opts.thresholds.n_blocks:
+            notes.append(
+                f"{eq} equation: only {em.n_rows} usable samples "
+                + ("(the arm hardly moves: arm-side effects cannot be assessed; excite the arm, e.g. an arm reference)"
+                   if eq == ARM else "")
+            )
+    found: list[Found] = []
+    for eq, r in res.items():
+        ev = r.selected
+        for name in ev.spec.effects:
+            without = ems[eq].evaluate(ev.spec.without(name))
+            gain = (without.cv - ev.cv) / without.cv if without.cv else 0.0
+            found.append(Found(name, eq, ev.params[name], ev.se.get(name, {}), float(ev.t_stat.get(name, 0.0)), gain))
+    ambiguities, lookalikes = check_lookalikes(ems, res, opts)
+    try:
+        effects_of(found)
+    except ValueError as err:  # e.g. a combination the effects vocabulary forbids
+        notes.append(f"the found effects are not a consistent set ({err}); reported as found, not simulated")
+    located = "; ".join(describe(r.location, list(r.selected.spec.effects)) for r in res.values())
+    prediction: dict = {}
+    fit_summary = _prediction_metric(ctx, ems, res, rig, opts, notes, prediction)
+    closed = _closed_loop(rec, rig, found, opts, notes) if opts.closed_loop else None
+    return Diagnosis(
+        effects=found, fit=fit_summary, located=located, ambiguities=ambiguities, lookalikes=lookalikes,
+        equations=res, closed_loop=closed, notes=notes, seconds=time.perf_counter() - t0, rig=rig.name, context=ctx,
+        models=ems, prediction=prediction,
+    )
+
+
+def _prediction_metric(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResult], rig: RigConfig,
+                       opts: Options, notes: list[str], keep: dict) -> dict:
+    prep = ctx.prep
+    horizon = max(5, round(opts.horizon / prep.dt))
+    starts = _windows(prep, opts.holdout, horizon, opts.max_windows)
+    split_t = prep.t[starts[0]] if starts else prep.t[-1]
+    # the selected effects refitted on the part before the held-out windows
+    train_found: list[Found] = []
+    for eq, r in res.items():
+        if not r.selected.spec.effects:
+            continue
+        em = ems[eq]
+        train = EquationModel(ctx, eq, opts.thresholds, row_filter=prep.t < split_t - 2 * opts.horizon)
+        if train.n_rows < 20 * opts.thresholds.n_blocks:
+            train = em
+            notes.append(f"{eq} equation: too little data before the held-out part; the prediction uses all-data parameters")
+        ev = refit(train, r.selected.spec)
+        train_found += [Found(n, eq, ev.params[n], {}, 0.0, 0.0) for n in ev.spec.effects]
+    try:
+        augmented = effects_of(train_found)
+    except ValueError:
+        augmented = Effects()
+    keep.update(starts=starts, horizon=horizon, augmented=augmented, substep_hz=opts.substep_hz)
+    nominal_p = verify.predict(rig, Effects(), prep, ctx.fine, starts, horizon, opts.substep_hz)
+    if train_found:
+        aug_p = verify.predict(rig, augmented, prep, ctx.fine, starts, horizon, opts.substep_hz)
+    else:
+        aug_p = nominal_p
+    return {
+        "metric": verify.PREDICTION_METRIC, "nominal": nominal_p.nrmse, "augmented": aug_p.nrmse,
+        "nominal_theta": nominal_p.nrmse_theta, "nominal_phi": nominal_p.nrmse_phi,
+        "augmented_theta": aug_p.nrmse_theta, "augmented_phi": aug_p.nrmse_phi,
+        "windows": nominal_p.windows, "horizon_s": horizon * prep.dt, "held_out_from_s": float(split_t - prep.t[0]),
+        "train_params": {f.name: f.params for f in train_found},
+    }
+
+
+def _closed_loop(rec: Recording, rig: RigConfig, found: list[Found], opts: Options, notes: list[str]) -> dict | None:
+    own, r2 = verify.is_own_closed_loop(rec, rig)
+    if not own:
+        if r2 > 0.5:
+            notes.append(
+                f"the commands are only partly the configured controller's (R² = {r2:.2f}); no closed-loop re-simulation"
+            )
+        return None
+    data = verify.closed_loop_stats(rec)
+    nominal = verify.closed_loop_stats(verify.resimulate(rec, rig, Effects(), opts.seed, opts.substep_hz))
+    try:
+        eff = effects_of(found)
+    except ValueError:
+        return {"data": data, "nominal": nominal, "augmented": None, "replay_r2": r2}
+    augmented = verify.closed_loop_stats(verify.resimulate(rec, rig, eff, opts.seed, opts.substep_hz)) if found else nominal
+    return {"data": data, "nominal": nominal, "augmented": augmented, "replay_r2": r2}
+
+

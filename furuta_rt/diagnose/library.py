@@ -1,0 +1,283 @@
+"""The library of candidate physics: how each named effect changes the inverse-dynamics residual.
+
+For one equation of eq. 4 the residual of the nominal model is
+
+    y = ID(x̂) − τ_known            (arm: τ_known = K*[applied command torque]; pendulum: 0)
+
+and an effect adds the torque the nominal model misses (friction, spring) or changes a parameter
+(inertia, θ offset, gain). Near the data, y ≈ Σ c_i X_i with columns X_i built here *from the shared
+models*: friction laws of furuta_rt.model.friction, the actuator chain of furuta_rt.model.actuator
+(delay, deadzone, saturation are nonlinear parameters of the command torque), and derivatives of
+FurutaPlant.inverse_dynamics for parameter changes (θ offset, arm inertia). Nothing of eq. 1 or eq. 4
+is re-typed here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from furuta_rt.config import RigConfig
+from furuta_rt.diagnose.signals import Prepared, States
+from furuta_rt.model.actuator import Actuator
+from furuta_rt.model.friction import Coulomb, Viscous
+from furuta_rt.model.plant import FurutaPlant
+from furuta_rt.model.rig import PENDULUM_COULOMB_EPSILON, RigModel
+
+ARM = "arm"
+PEND = "pendulum"
+
+
+def law_on_array(law_torque, v: np.ndarray) -> np.ndarray:
+    """A scalar friction law of furuta_rt.model.friction evaluated on an array of velocities."""
+    return np.vectorize(law_torque, otypes=[float])(v)
+
+
+def piecewise_linear_on_array(f, x: np.ndarray, kinks: tuple[float, ...]) -> np.ndarray:
+    """A scalar, piecewise-linear function (the actuator chain) on an array: interpolated between its
+    values on a dense grid that also holds the expected kinks (exact when the kinks are among them)."""
+    lo, hi = float(np.min(x)), float(np.max(x))
+    nodes = np.unique(np.concatenate([np.linspace(lo, hi, 1025), [0.0], [k for k in kinks if lo < k < hi]]))
+    return np.interp(x, nodes, [f(float(v)) for v in nodes])
+
+
+def actuator_kinks(act: Actuator) -> tuple[float, ...]:
+    """Where the command → torque map of ``act`` bends: deadzone edges and saturation onsets."""
+    dz, lim = act.deadzone / act.gain, act.limit
+    out = [dz, -dz]
+    if lim is not None:
+        out += [dz + lim / act.gain, -dz - lim / act.gain]
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class InputPath:
+    """Nonlinear parameters of the command → torque chain (furuta_rt.model.actuator.Actuator order:
+    delay, gain, deadzone, saturation). ``deadzone``/``limit`` are in command units before the gain;
+    the gain is linear on top: τ = g·shape(u), and shape commutes with g (dz_w(g u) = g·dz_{w/g}(u))."""
+
+    delay: float = 0.0
+    deadzone: float = 0.0
+    limit: float | None = None
+
+
+@dataclass
+class Context:
+    """Everything the columns need for one recording, computed once."""
+
+    prep: Prepared
+    rig: RigConfig
+    plant: FurutaPlant
+    model: RigModel
+    arm: States
+    pend: States
+    fine: States
+    _held: dict[InputPath, np.ndarray] = field(default_factory=dict)
+    _tau0: dict[tuple[float, float | None], np.ndarray] = field(default_factory=dict)
+    _columns: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @classmethod
+    def build(cls, prep: Prepared, rig: RigConfig, sigma_arm: float, sigma_pend: float, sigma_fine: float) -> Context:
+        model = RigModel.from_config(rig)
+        return cls(
+            prep=prep, rig=rig, plant=model.plant, model=model,
+            arm=prep.states(sigma_arm), pend=prep.states(sigma_pend), fine=prep.states(sigma_fine),
+        )
+
+    def states(self, equation: str) -> States:
+        return self.arm if equation == ARM else self.pend
+
+    def inverse_dynamics(self, equation: str, plant: FurutaPlant | None = None, theta_shift: float = 0.0) -> np.ndarray:
+        s = self.states(equation)
+        tp, ta = (plant or self.plant).inverse_dynamics(
+            s.theta - theta_shift, s.theta_dot, s.phi_dot, s.theta_ddot, s.phi_ddot
+        )
+        return ta if equation == ARM else tp
+
+    # ------------------------------------------------------------------ the command torque
+    def command_torque(self, path: InputPath, equation: str = ARM) -> np.ndarray:
+        """K * (torque the command produces through the actuator chain, before the gain)."""
+        if equation == ARM and path in self._held:
+            return self._held[path]
+        shape_key = (path.deadzone, path.limit)
+        tau0 = self._tau0.get(shape_key)
+        if tau0 is None:
+            a = self.model.actuator
+            act = Actuator(kind=a.kind, motor=a.motor, gain=1.0, deadzone=path.deadzone, limit=path.limit)
+            tau0 = piecewise_linear_on_array(lambda c: act.torque_terms(c)[0], self.prep.u, actuator_kinks(act))
+            if len(self._tau0) < 256:
+                self._tau0[shape_key] = tau0
+        held = self.states(equation).held(tau0, self.prep.command_lag + path.delay)
+        if equation == ARM and len(self._held) < 1024:
+            self._held[path] = held
+        return held
+
+    @cached_property
+    def back_emf(self) -> float:
+        """Viscous-like damping of a voltage-driven motor (N m s/rad), part of the nominal model."""
+        return self.model.actuator.torque_terms(0.0)[1]
+
+    def arm_residual(self, path: InputPath, d_inertia: float = 0.0) -> np.ndarray:
+        """y_arm = ID_arm(J + ΔJ) + d·φ̇ − K*τ_command(path) (d: back-EMF damping of a DC motor)."""
+        y = self.arm_id + self.back_emf * self.arm.phi_dot - self.command_torque(path)
+        return y + d_inertia * self.arm_dJ if d_inertia else y
+
+    @cached_property
+    def arm_dJ(self) -> np.ndarray:
+        """∂ID_arm/∂J (ID is linear in J, so the difference quotient is exact)."""
+        plant1 = FurutaPlant(self.plant.p.with_arm_inertia(0.0, INERTIA_STEP))
+        return (self.inverse_dynamics(ARM, plant1) - self.arm_id) / INERTIA_STEP
+
+    @cached_property
+    def arm_m22(self) -> np.ndarray:
+        """M22(θ) of eq. 4, the arm's inertia as the arm equation sees it (from inverse_dynamics)."""
+        s = self.arm
+        one, zero = np.ones_like(s.theta), np.zeros_like(s.theta)
+        return self.plant.inverse_dynamics(s.theta, zero, zero, zero, one)[1] - self.plant.inverse_dynamics(
+            s.theta, zero, zero, zero, zero
+        )[1]
+
+    def arm_weight(self, d_inertia: float) -> np.ndarray | float:
+        """Residual weight M22_nominal / M22_model: the arm residual's noise is the encoder's φ̈ error times
+        the model's inertia, so models with different inertias are compared in acceleration units."""
+        return 1.0 if not d_inertia else self.arm_m22 / (self.arm_m22 + d_inertia)
+
+    @cached_property
+    def arm_id(self) -> np.ndarray:
+        return self.inverse_dynamics(ARM)
+
+    @cached_property
+    def pend_id(self) -> np.ndarray:
+        return self.inverse_dynamics(PEND)
+
+    # ------------------------------------------------------------------ masks
+    @cached_property
+    def arm_still(self) -> np.ndarray:
+        """Samples in runs of ≥ STILL_TICKS ticks with the same encoder count: the arm is stuck, or moves
+        too slowly for the encoder to resolve its acceleration."""
+        cnt = np.round(self.prep.phi / self.prep.phi_lsb).astype(np.int64)
+        start = np.flatnonzero(np.concatenate([[True], np.diff(cnt) != 0]))
+        runs = np.diff(np.concatenate([start, [len(cnt)]]))
+        return np.repeat(runs, runs) >= STILL_TICKS
+
+    @cached_property
+    def arm_rows(self) -> np.ndarray:
+        """Rows of the arm equation whose filter window sees the arm sliding (no still run inside)."""
+        h = self.arm.filt.half + 2
+        near = np.convolve(self.arm_still.astype(float), np.ones(2 * h + 1), mode="same") > 0
+        return self.prep.valid & ~near
+
+    @cached_property
+    def pend_rows(self) -> np.ndarray:
+        return self.prep.valid
+
+
+STILL_TICKS = 10
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One named effect of furuta_rt.model.effects as seen by the regression."""
+
+    name: str
+    equation: str
+    main: str  # the parameter that measures its size
+    lookalikes: tuple[str, ...] = ()
+    nonlinear: str | None = None  # "delay" | "deadzone" | "limit" (command path) or "inertia" (ΔJ)
+
+    def columns(self, ctx: Context, path: InputPath) -> np.ndarray:
+        """(n, k) regressors for this effect's linear parameters (k = 0 for pure input-path effects)."""
+        if self.name == "input_gain":
+            return ctx.command_torque(path)[:, None]
+        cached = ctx._columns.get(self.name)
+        if cached is None:
+            cached = ctx._columns[self.name] = self._columns(ctx)
+        return cached
+
+    def _columns(self, ctx: Context) -> np.ndarray:
+        n = ctx.prep.n
+        a, p, f = ctx.arm, ctx.pend, ctx.fine
+        match self.name:
+            case "arm_coulomb":
+                return a.smooth(law_on_array(Coulomb(1.0).torque, f.phi_dot))[:, None]
+            case "arm_viscous":
+                return Viscous(1.0).torque(a.phi_dot)[:, None]
+            case "arm_spring":
+                # −k(φ − φ0) = −k·φ + (k φ0): the cable spring of RigModel.spring_k / spring_phi0
+                return np.column_stack([-a.phi, np.ones(n)])
+            case "pendulum_viscous":
+                return Viscous(1.0).torque(p.theta_dot)[:, None]
+            case "pendulum_coulomb":
+                return p.smooth(law_on_array(Coulomb(1.0, PENDULUM_COULOMB_EPSILON).torque, f.theta_dot))[:, None]
+            case "theta_offset":
+                h = 1e-4
+                up, down = ctx.inverse_dynamics(PEND, theta_shift=-h), ctx.inverse_dynamics(PEND, theta_shift=h)
+                return ((up - down) / (2 * h))[:, None]
+        return np.zeros((n, 0))
+
+    def params(self, coef: np.ndarray, path: InputPath, gain: float, rig: RigConfig, d_inertia: float = 0.0) -> dict[str, float]:
+        """SI parameters in the diagnose JSON names from the fitted coefficients."""
+        match self.name:
+            case "arm_coulomb":
+                return {"Fc": float(coef[0])}
+            case "arm_viscous":
+                return {"Fv": float(coef[0])}
+            case "arm_spring":
+                k = float(coef[0])
+                return {"k": k, "phi0": float(coef[1] / k) if k != 0 else 0.0}
+            case "arm_inertia":
+                return {"J": float(rig.plant.arm_inertia + d_inertia)}
+            case "input_gain":
+                return {"gain": float(1.0 + coef[0])}
+            case "pendulum_viscous":
+                return {"bp": float(coef[0])}
+            case "pendulum_coulomb":
+                return {"Fc": float(coef[0])}
+            case "theta_offset":
+                return {"offset": float(coef[0])}
+            case "input_delay":
+                return {"delay": float(path.delay)}
+            case "input_deadzone":
+                return {"width": float(path.deadzone * gain)}
+            case "input_saturation":
+                return {"limit": float((path.limit or 0.0) * gain)}
+        raise KeyError(self.name)
+
+    def plausible(self, par: dict[str, float], rig: RigConfig) -> bool:
+        """Physically admissible values (friction opposes motion, springs restore, inertia positive)."""
+        match self.name:
+            case "arm_coulomb" | "arm_viscous" | "pendulum_viscous" | "pendulum_coulomb":
+                return next(iter(par.values())) > 0
+            case "arm_spring":
+                return par["k"] > 0 and abs(par["phi0"]) < 2 * np.pi
+            case "arm_inertia":
+                return par["J"] > 0.05 * rig.plant.arm_inertia
+            case "input_gain":
+                return 0.2 < par["gain"] < 5.0
+            case "input_delay":
+                return par["delay"] > 0
+            case "theta_offset":
+                return abs(par["offset"]) < 0.3
+        return True
+
+
+INERTIA_STEP = 1e-3  # kg m², for the derivative of ID with respect to J (ID is linear in J: exact)
+
+CANDIDATES: dict[str, Candidate] = {
+    c.name: c
+    for c in (
+        Candidate("arm_coulomb", ARM, "Fc", lookalikes=("input_deadzone",)),
+        Candidate("arm_viscous", ARM, "Fv"),
+        Candidate("arm_spring", ARM, "k", lookalikes=("theta_offset",)),
+        Candidate("arm_inertia", ARM, "J", lookalikes=("input_gain",), nonlinear="inertia"),
+        Candidate("input_gain", ARM, "gain", lookalikes=("arm_inertia",)),
+        Candidate("input_delay", ARM, "delay", nonlinear="delay"),
+        Candidate("input_deadzone", ARM, "width", lookalikes=("arm_coulomb",), nonlinear="deadzone"),
+        Candidate("input_saturation", ARM, "limit", nonlinear="limit"),
+        Candidate("pendulum_viscous", PEND, "bp", lookalikes=("pendulum_coulomb",)),
+        Candidate("pendulum_coulomb", PEND, "Fc", lookalikes=("pendulum_viscous",)),
+        Candidate("theta_offset", PEND, "offset", lookalikes=("arm_spring",)),
+    )
+}

@@ -1,0 +1,149 @@
+"""The diagnosis as text, as a report directory (figures + summary.md) and its figures.
+
+Figures (matplotlib Agg canvases, no pyplot state):
+  residuals.png  the inverse-dynamics residual of each equation before (nominal) and after (augmented)
+  where.png      where the mismatch sits: the nominal residual against the signal it follows most, and per
+                 operating region
+  prediction.png held-out prediction windows: data, nominal and augmented simulations
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from furuta_rt.diagnose.engine import Diagnosis
+from furuta_rt.diagnose.locate import features
+from furuta_rt.diagnose.verify import quiet, simulate_window
+from furuta_rt.model.rig import RigModel
+
+DPI = 72
+
+
+def _figure(rows: int, cols: int, size: tuple[float, float]) -> tuple[Figure, np.ndarray]:
+    fig = Figure(figsize=size, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig, np.atleast_1d(fig.subplots(rows, cols, squeeze=False))
+
+
+def fmt_params(params: dict[str, float], se: dict[str, float] | None = None) -> str:
+    se = se or {}
+    return ", ".join(f"{k} = {v:.4g}" + (f" ± {se[k]:.2g}" if k in se and np.isfinite(se[k]) else "") for k, v in params.items())
+
+
+def text(d: Diagnosis) -> list[str]:
+    """The report as lines of plain text."""
+    lines = [f"rig {d.rig}; diagnosed in {d.seconds:.1f} s"]
+    if d.effects:
+        lines.append("effects found (held-out error reduction, significance):")
+        for e in d.effects:
+            lines.append(
+                f"  {e.name}: {fmt_params(e.params, e.se)}   [{e.equation} equation, −{100 * e.cv_gain:.1f} %, t = {e.t:.0f}]"
+            )
+    else:
+        lines.append("no effect found: the nominal model explains the recording")
+    for a in d.ambiguities:
+        alt = a["alternative"]
+        lines.append(f"ambiguous: {a['effects'][0]} or {alt['name']} ({fmt_params(alt['params'])}): {a['reason']}; "
+                     f"to separate them: {a['experiment']}")
+    for a in d.lookalikes:
+        lines.append(f"told apart: {a['effects'][0]} rather than {a['effects'][1]}: {a['reason']}")
+    lines.append(f"located: {d.located}")
+    f = d.fit
+    lines.append(f"fit ({f['metric']}, {f['windows']} windows of {f['horizon_s']:.2f} s from t = {f['held_out_from_s']:.1f} s): "
+                 f"nominal {f['nominal']:.4f} (θ {f['nominal_theta']:.4f}, φ {f['nominal_phi']:.4f}) → augmented "
+                 f"{f['augmented']:.4f} (θ {f['augmented_theta']:.4f}, φ {f['augmented_phi']:.4f})")
+    if d.closed_loop:
+        lines.append("closed-loop re-simulation (std θ, std φ, std u, φ limit cycle amplitude / period):")
+        for k in ("data", "nominal", "augmented"):
+            s = d.closed_loop.get(k)
+            if s:
+                lc = (f"{s['lc_phi_amplitude']:.3g} rad / {s['lc_phi_period']:.2f} s" if s["lc_phi_amplitude"] is not None
+                      else "none")
+                lines.append(f"  {k:9s} {s['std_theta']:.4g} rad, {s['std_phi']:.4g} rad, {s['std_u']:.4g}, {lc}")
+    lines += [f"note: {n}" for n in d.notes]
+    return lines
+
+
+def figures(d: Diagnosis, out: Path, prefix: str = "") -> list[Path]:
+    """Write the report's figures into ``out``; returns their paths."""
+    out.mkdir(parents=True, exist_ok=True)
+    ctx = d.context
+    t = ctx.prep.t - ctx.prep.t[0]
+    paths = []
+    # residuals before / after
+    fig, ax = _figure(2, 1, (8, 5))
+    for i, (eq, r) in enumerate(d.equations.items()):
+        em = d.models[eq]
+        rows = em.row_mask
+        y0 = em.residual(r.nominal.spec)
+        y1 = em.residual(r.selected.spec, r.selected.fit.coef)
+        a = ax[i, 0]
+        a.plot(t[rows], y0[rows], ".", ms=1, color="C3", label="nominal")
+        a.plot(t[rows], y1[rows], ".", ms=1, color="C0", label="augmented: " + (", ".join(r.selected.spec.effects) or "none"))
+        for lo, hi in r.location.times:
+            a.axvspan(lo - ctx.prep.t[0], hi - ctx.prep.t[0], color="C1", alpha=0.15)
+        a.set_ylabel(f"{eq} residual (N m)")
+        a.legend(loc="upper right", fontsize=7, markerscale=6)
+    ax[-1, 0].set_xlabel("t (s)")
+    paths.append(_save(fig, out / f"{prefix}residuals.png"))
+    # where: nominal residual against the signal it follows most
+    fig, ax = _figure(1, 2, (8, 3.2))
+    for i, (eq, r) in enumerate(d.equations.items()):
+        a = ax[0, i]
+        corr = {k: v for k, v in r.location.correlations.items() if k != "1"}
+        key = max(corr, key=lambda k: abs(corr[k])) if corr else None
+        rows = d.models[eq].row_mask
+        y0 = d.models[eq].residual(r.nominal.spec)[rows]
+        if key is not None:
+            x = features(ctx, eq)[key][rows]
+            a.plot(x, y0, ".", ms=1, alpha=0.3, color="C3")
+            a.set_xlabel(key)
+        a.set_ylabel(f"{eq} residual, nominal (N m)")
+        regions = ", ".join(f"{k} ×{v:.1f}" for k, v in r.location.regions.items())
+        a.set_title(f"{eq}: r = {corr.get(key, 0):+.2f}; rms by region: {regions}", fontsize=7)
+    paths.append(_save(fig, out / f"{prefix}where.png"))
+    # held-out prediction windows
+    pred = d.prediction
+    starts = pred.get("starts", [])
+    if starts:
+        fig, ax = _figure(2, 1, (8, 4.5))
+        rig = ctx.rig
+        models = (RigModel.from_config(quiet(rig)), RigModel.from_config(quiet(rig), pred["augmented"]))
+        h = pred["horizon"]
+        for k in starts[:: max(1, len(starts) // 4)][:4]:
+            span = slice(k + 1, k + 1 + h)
+            tt = t[span]
+            ax[0, 0].plot(tt, ctx.prep.theta_f[span], "k", lw=1)
+            ax[1, 0].plot(tt, ctx.prep.phi[span], "k", lw=1)
+            for model, style in zip(models, ("C3--", "C0"), strict=True):
+                th, ph = simulate_window(model, ctx.prep, ctx.fine, k, h, pred["substep_hz"])
+                ax[0, 0].plot(tt, th, style, lw=1)
+                ax[1, 0].plot(tt, ph, style, lw=1)
+        ax[0, 0].set_ylabel("θ_f (rad)")
+        ax[1, 0].set_ylabel("φ (rad)")
+        ax[1, 0].set_xlabel("t (s)")
+        ax[0, 0].legend(["data", "nominal", "augmented"], fontsize=7)
+        title = f"held-out prediction NRMSE: nominal {d.fit['nominal']:.3f}, augmented {d.fit['augmented']:.3f}"
+        ax[0, 0].set_title(title, fontsize=8)
+        paths.append(_save(fig, out / f"{prefix}prediction.png"))
+    return paths
+
+
+def write_report(d: Diagnosis, out: Path) -> list[Path]:
+    paths = figures(d, out)
+    md = ["# furuta-rt diagnose", "", *[f"    {line}" for line in text(d)], ""]
+    md += [f"![{p.stem}]({p.name})" for p in paths]
+    (out / "summary.md").write_text("\n".join(md) + "\n")
+    (out / "diagnosis.json").write_text(json.dumps(d.to_json(), indent=1, default=float))
+    return [*paths, out / "summary.md", out / "diagnosis.json"]
+
+
+# ------------------------------------------------------------------------------ helpers
+def _save(fig: Figure, path: Path) -> Path:
+    fig.savefig(path, dpi=DPI)
+    return path

@@ -1,0 +1,235 @@
+"""Which effects the data asks for: forward stepwise selection on held-out time blocks.
+
+Per equation of eq. 4, starting from the nominal model, every candidate not yet in the model is added
+in turn (its nonlinear parameter — delay, deadzone width, saturation limit — profiled on a grid, the
+grid value chosen on the training blocks only), and the candidate that lowers the held-out (blocked
+K-fold) squared error most is kept if
+
+* the held-out error drops by at least ``min_gain`` (relative), and by more than the BIC penalty of
+  its parameters on the effective number of samples,
+* its main parameter is significant (|value| ≥ ``t_min`` jackknife standard errors), and
+* the parameters are physically admissible (friction opposes motion, springs restore, ...).
+
+A backward pass then drops any effect whose removal costs less than ``min_gain``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from furuta_rt.diagnose.fitting import Blocks, Fit, Stats, fit, fit_profiled
+from furuta_rt.diagnose.library import ARM, CANDIDATES, Candidate, Context, InputPath
+
+
+@dataclass(frozen=True)
+class Spec:
+    """A model of one equation: the effects it contains and the command path's nonlinear parameters."""
+
+    equation: str
+    effects: tuple[str, ...] = ()
+    path: InputPath = field(default_factory=InputPath)
+    d_inertia: float = 0.0  # arm inertia change ΔJ (kg m²)
+
+    def with_value(self, kind: str, value: float) -> Spec:
+        if kind == "inertia":
+            return replace(self, d_inertia=value)
+        return replace(self, path=replace(self.path, **{kind: value}))
+
+    def with_effect(self, name: str) -> Spec:
+        return replace(self, effects=(*self.effects, name))
+
+    def without(self, name: str) -> Spec:
+        kind = CANDIDATES[name].nonlinear
+        rest = replace(self, effects=tuple(e for e in self.effects if e != name))
+        if kind is None:
+            return rest
+        return rest.with_value(kind, None if kind == "limit" else 0.0)  # type: ignore[arg-type]
+
+
+@dataclass
+class Evaluation:
+    spec: Spec
+    fit: Fit
+    params: dict[str, dict[str, float]]
+    t_stat: dict[str, float]  # main parameter / its jackknife error
+    se: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    @property
+    def cv(self) -> float:
+        return self.fit.cv_sse
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    min_gain: float = 0.01
+    t_min: float = 4.0
+    n_blocks: int = 10
+
+
+class EquationModel:
+    """Builds and scores Specs of one equation on one recording."""
+
+    def __init__(self, ctx: Context, equation: str, thresholds: Thresholds, row_filter: np.ndarray | None = None) -> None:
+        self.ctx = ctx
+        self.equation = equation
+        self.th = thresholds
+        mask = ctx.arm_rows if equation == ARM else ctx.pend_rows
+        if row_filter is not None:
+            mask = mask & row_filter
+        self.blocks = Blocks.split(mask, thresholds.n_blocks)
+        self.n_rows = len(self.blocks.rows)
+        self.corr_len = ctx.states(equation).filt.sigma * 2.5 / ctx.prep.dt  # samples per independent residual
+
+    @property
+    def candidates(self) -> list[Candidate]:
+        return [c for c in CANDIDATES.values() if c.equation == self.equation]
+
+    def target(self, spec: Spec) -> np.ndarray:
+        return self.ctx.arm_residual(spec.path, spec.d_inertia) if self.equation == ARM else self.ctx.pend_id
+
+    def design(self, spec: Spec) -> tuple[np.ndarray, list[tuple[str, slice]]]:
+        cols, owners, k = [], [], 0
+        for name in spec.effects:
+            X = CANDIDATES[name].columns(self.ctx, spec.path)
+            if X.shape[1]:
+                cols.append(X)
+                owners.append((name, slice(k, k + X.shape[1])))
+                k += X.shape[1]
+        X = np.column_stack(cols) if cols else np.zeros((self.ctx.prep.n, 0))
+        return X, owners
+
+    def stats(self, spec: Spec) -> tuple[Stats, list[tuple[str, slice]]]:
+        X, owners = self.design(spec)
+        y = self.target(spec)
+        if self.equation == ARM and spec.d_inertia:
+            w = self.ctx.arm_weight(spec.d_inertia)
+            y, X = y * w, X * np.asarray(w)[:, None]
+        return Stats.of(y, X, self.blocks), owners
+
+    def _finish(self, spec: Spec, f: Fit, owners: list[tuple[str, slice]], nl_folds: np.ndarray | None = None,
+                nl_name: str | None = None, nl_step: float = 0.0, nl_value: float = 0.0) -> Evaluation:
+        gain = 1.0
+        for name, sl in owners:
+            if name == "input_gain":
+                gain = 1.0 + float(f.coef[sl][0])
+        params, tstat, se = {}, {}, {}
+        for name in spec.effects:
+            cand = CANDIDATES[name]
+            sl = dict(owners).get(name)
+            coef = f.coef[sl] if sl is not None else np.zeros(0)
+            params[name] = cand.params(coef, spec.path, gain, self.ctx.rig, spec.d_inertia)
+            if sl is not None:
+                err = f.se[sl]
+                tstat[name] = abs(float(coef[0])) / max(float(err[0]), 1e-300)
+                se[name] = {k: float(e) for k, e in zip(params[name], err, strict=False)}
+        if nl_name is not None and nl_folds is not None:
+            B = len(nl_folds)
+            spread = float(np.sqrt((B - 1) / B * np.sum((nl_folds - nl_folds.mean()) ** 2)))
+            err = max(spread, 0.5 * nl_step)
+            # significance of the departure from nominal (ΔJ, delay, width); a limit is judged by CV alone
+            tstat[nl_name] = np.inf if nl_name == "input_saturation" else abs(nl_value) / err
+            se[nl_name] = {next(iter(params[nl_name])): err}
+        return Evaluation(spec, f, params, tstat, se)
+
+    def residual(self, spec: Spec, coef: np.ndarray | None = None) -> np.ndarray:
+        """The (inertia-weighted) residual of ``spec`` with linear coefficients ``coef`` (none: the target)."""
+        y = self.target(spec)
+        if coef is not None and coef.size:
+            X, _ = self.design(spec)
+            y = y - X @ coef
+        return y * self.ctx.arm_weight(spec.d_inertia) if self.equation == ARM else y
+
+    @property
+    def row_mask(self) -> np.ndarray:
+        m = np.zeros(self.ctx.prep.n, dtype=bool)
+        m[self.blocks.rows] = True
+        return m
+
+    def evaluate(self, spec: Spec) -> Evaluation:
+        st, owners = self.stats(spec)
+        return self._finish(spec, fit(st), owners)
+
+    def grid(self, kind: str) -> np.ndarray:
+        u = np.abs(self.ctx.prep.u[self.ctx.prep.valid])
+        if kind == "delay":
+            return np.arange(0.0, 0.05 + 1e-12, 0.00025)
+        if kind == "deadzone":
+            return np.linspace(0.0, float(np.quantile(u, 0.8)), 41)
+        if kind == "limit":
+            return np.linspace(float(np.quantile(u, 0.6)), float(u.max()) * 1.001, 31)
+        if kind == "inertia":  # J_true / J_config from 0.3 to 3 in 0.5 % steps
+            J = self.ctx.rig.plant.arm_inertia
+            return J * (np.exp(np.arange(np.log(0.3), np.log(3.0), 0.005)) - 1.0)
+        raise KeyError(kind)
+
+    def evaluate_with(self, spec: Spec, name: str) -> Evaluation:
+        """``spec`` + candidate ``name``, its nonlinear parameter (if any) profiled on a grid."""
+        cand = CANDIDATES[name]
+        new = spec.with_effect(name)
+        if cand.nonlinear is None:
+            return self.evaluate(new)
+        grid = self.grid(cand.nonlinear)
+        owners: list[tuple[str, slice]] = []
+
+        def stats_of(value: float) -> Stats:
+            st, own = self.stats(new.with_value(cand.nonlinear, value))  # type: ignore[arg-type]
+            owners[:] = own
+            return st
+
+        f, value, folds = fit_profiled(stats_of, grid)
+        step = float(np.median(np.diff(grid))) if len(grid) > 1 else 0.0
+        _, owners = self.stats(new.with_value(cand.nonlinear, value))
+        return self._finish(new.with_value(cand.nonlinear, value), f, owners, folds, name, 0.1 * step, value)
+
+    def bic_penalty(self, k_added: int, sse: float) -> float:
+        """ΔSSE a new parameter must buy on the effective sample count (BIC with n_eff = n / corr_len)."""
+        n_eff = max(self.n_rows / self.corr_len, 10.0)
+        return k_added * np.log(n_eff) * sse / n_eff
+
+    def admissible(self, ev: Evaluation, name: str) -> bool:
+        return CANDIDATES[name].plausible(ev.params[name], self.ctx.rig) and ev.t_stat.get(name, 0.0) >= self.th.t_min
+
+    def select(self, allowed: set[str] | None = None) -> tuple[Evaluation, Evaluation, list[dict]]:
+        """(nominal evaluation, selected evaluation, trace of the steps)."""
+        nominal = self.evaluate(Spec(self.equation))
+        current = nominal
+        trace: list[dict] = []
+        if self.n_rows < 20 * self.th.n_blocks:
+            return nominal, current, trace
+        names = [c.name for c in self.candidates if allowed is None or c.name in allowed]
+        while True:
+            best: tuple[float, Evaluation, str] | None = None
+            for name in names:
+                if name in current.spec.effects:
+                    continue
+                ev = self.evaluate_with(current.spec, name)
+                gain = (current.cv - ev.cv) / current.cv
+                k = max(1, ev.fit.coef.size - current.fit.coef.size)
+                ok = (
+                    gain >= self.th.min_gain
+                    and current.cv - ev.cv > self.bic_penalty(k, ev.cv)
+                    and self.admissible(ev, name)
+                )
+                trace.append({"step": len(current.spec.effects), "candidate": name, "cv_gain": gain,
+                              "t": ev.t_stat.get(name, 0.0), "params": ev.params[name], "accepted": False, "ok": ok})
+                if ok and (best is None or gain > best[0]):
+                    best = (gain, ev, name)
+            if best is None:
+                break
+            current = best[1]
+            for row in trace:
+                if row["candidate"] == best[2] and row["step"] == len(current.spec.effects) - 1:
+                    row["accepted"] = True
+        # backward pass: every kept effect must still pay for itself
+        changed = True
+        while changed and len(current.spec.effects) > 1:
+            changed = False
+            for name in current.spec.effects:
+                reduced = self.evaluate(current.spec.without(name))
+                if (reduced.cv - current.cv) / reduced.cv < self.th.min_gain:
+                    current = reduced
+                    changed = True
+                    break
+        return nominal, current, trace
