@@ -284,9 +284,9 @@ def _python_control_intersections(
     G: control.TransferFunction, fc: float, crossings: list[tuple[float, float]]
 ) -> list[tuple[float, float]]:
     """The same intersections by python-control's describing_function_response (the cross-check)."""
-    omega = np.logspace(-2, 3, 4000)
+    omega = np.logspace(-2, 3, 1500)
     scale = max([4 * fc * abs(re) / math.pi for _, re in crossings] + [fc])
-    amps = np.logspace(-4, 3, 500) * scale
+    amps = np.logspace(-3, 2, 120) * scale
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         resp = control.describing_function_response(G, CoulombRelay(fc), amps, omega=omega)

@@ -101,7 +101,12 @@ def orbit_report(
     if loop == "sampled":
         preds = sampled_limit_cycle(rig, gains, fc)
         df = ([p for p in preds if p.stable] or preds or [None])[0]
-    if df is not None:
+    if df is not None and not df.stable:
+        out["describing_function_note"] = (
+            f"the describing-function solution ({df.omega:.3g} rad/s, φ̇ amplitude {df.amplitude_phidot:.3g} rad/s) is an "
+            "unstable limit cycle, the threshold above which oscillations grow: not the orbit the loop settles on"
+        )
+    elif df is not None:
         o = orbit.stats
         out["describing_function"] = {"loop": loop, **df.to_dict()}
         out["describing_function_vs_orbit"] = {

@@ -45,6 +45,9 @@ class IdealLoop:
         model = replace(RigModel.from_config(rig, effects), bessel=None, theta_noise=0.0, theta_dot_noise=0.0)
         self.sim = Simulator(model, rate_hz, rate_hz)
         self.gains = np.asarray(gains, dtype=float)
+        # φ is cyclic (the dynamics do not depend on it) without φ feedback or cable spring: an orbit
+        # may then drift in φ, and φ is left out of the periodicity condition.
+        self.cyclic: tuple[int, ...] = (2,) if self.gains[2] == 0.0 and model.spring_k == 0.0 else ()
         self.dt = 1.0 / rate_hz
         self._lugre = model.arm_friction.lugre is not None
         self.u = 0.0
@@ -87,6 +90,7 @@ class SampledLoop:
         self.ctrl = Controller.from_rig(rig, mode=mode, gains=gains)
         self.ctrl.reset(0.0)
         self._comp_state = self.ctrl.compensator.mode == "lugre"
+        self.cyclic: tuple[int, ...] = ()
         self.dt = 1.0 / rig.control.rate_hz
         self._lugre = model.arm_friction.lugre is not None
         self.u = 0.0
@@ -141,7 +145,7 @@ class Trajectory:
     stuck: np.ndarray
 
 
-def _record(loop: Loop, steps: int) -> Trajectory:
+def record_trajectory(loop: Loop, steps: int) -> Trajectory:
     t = np.arange(steps + 1) * loop.dt
     x = np.empty((steps + 1, 4))
     u = np.empty(steps + 1)
@@ -178,12 +182,14 @@ def _to_section(loop: Loop, count: int, max_time: float, fall: float) -> tuple[n
 
 @dataclass(frozen=True)
 class OrbitStats:
-    """Period and amplitudes (half peak-to-peak) and standard deviations over whole periods."""
+    """Period and amplitudes (half peak-to-peak) and standard deviations over whole periods.
+    ``amplitude["phi_dot"]`` is half the peak-to-peak of φ̇ (its peak for a symmetric orbit)."""
 
     period: float
     amplitude: dict[str, float]
     std: dict[str, float]
     stuck_fraction: float
+    drift_phi_dot: float = 0.0  # mean arm velocity over the period (rad/s)
 
     def to_dict(self) -> dict:
         return {
@@ -192,15 +198,20 @@ class OrbitStats:
             "amplitude": self.amplitude,
             "std": self.std,
             "stuck_fraction": self.stuck_fraction,
+            "drift_phi_dot": self.drift_phi_dot,
         }
 
 
 def _stats(tr: Trajectory, period: float) -> OrbitStats:
-    amp = {name: float(np.ptp(tr.x[:, i]) / 2) for i, name in enumerate(STATE_LABELS)}
+    """Amplitudes and stds over whole periods; φ with its mean drift (if any) removed."""
+    x = tr.x.copy()
+    drift = float(np.mean(x[:, 3]))
+    x[:, 2] -= drift * (tr.t - tr.t[0])
+    amp = {name: float(np.ptp(x[:, i]) / 2) for i, name in enumerate(STATE_LABELS)}
     amp["u"] = float(np.ptp(tr.u) / 2)
-    std = {name: float(np.std(tr.x[:, i])) for i, name in enumerate(STATE_LABELS)}
+    std = {name: float(np.std(x[:, i])) for i, name in enumerate(STATE_LABELS)}
     std["u"] = float(np.std(tr.u))
-    return OrbitStats(period, amp, std, float(np.mean(tr.stuck)))
+    return OrbitStats(period, amp, std, float(np.mean(tr.stuck)), drift)
 
 
 @dataclass(frozen=True)
@@ -213,6 +224,7 @@ class PeriodicOrbit:
     residual: float  # ‖P(x*) − x*‖ relative to the orbit's size
     iterations: int
     stable: bool
+    stability_method: str
     multipliers: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def to_dict(self) -> dict:
@@ -224,6 +236,7 @@ class PeriodicOrbit:
             "newton_iterations": self.iterations,
             "floquet_multipliers_abs": sorted((float(abs(m)) for m in self.multipliers), reverse=True),
             "stable": self.stable,
+            "stability_method": self.stability_method,
         }
 
 
@@ -234,11 +247,15 @@ def find_periodic_orbit(
     warmup_crossings: int = 6,
     max_period: float = 30.0,
     tol: float = 1e-7,
+    accept: float = 1e-3,
     max_iter: int = 12,
     fd_rel: float | None = None,
     fall: float = 1.0,
 ) -> PeriodicOrbit:
-    """Newton shooting on the θ = 0 upward section, started from a short simulation from ``x0``."""
+    """Newton shooting on the θ = 0 upward section, started from a short simulation from ``x0``.
+
+    Converges to ``tol`` (relative to the orbit's size) or to the map's roughness floor; raises
+    OrbitNotFound if the residual stays above ``accept``."""
     base = loop.get()
     base[:4] = x0
     loop.set(base)
@@ -251,12 +268,12 @@ def find_periodic_orbit(
         pts.append(x)
     oscale = _orbit_scale(pts)
     last = pts[-1]
+    free = np.array([i for i in range(1, len(last)) if i not in loop.cyclic])  # θ = 0 on the section
     m, best = 1, math.inf
     for cand in (1, 2, 3):
-        d = float(np.max(np.abs(pts[-1] - pts[-1 - cand]) / oscale))
+        d = float(np.max(np.abs(pts[-1][free] - pts[-1 - cand][free]) / oscale[free]))
         if d < 0.5 * best:
             m, best = cand, d
-    free = np.arange(1, len(last))  # θ = 0 on the section
 
     def residual(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         x = last.copy()
@@ -266,9 +283,9 @@ def find_periodic_orbit(
         xn, T = _to_section(loop, m, max_period * m, fall)
         return (xn[free] - z), xn, T
 
-    def jacobian(z: np.ndarray, r: np.ndarray) -> np.ndarray:
-        """DP − I by forward differences."""
-        h = (fd_rel or loop.fd_rel) * oscale[free]
+    def jacobian(z: np.ndarray, r: np.ndarray, rel: float) -> np.ndarray:
+        """DP − I by forward differences with steps ``rel`` times the orbit's size."""
+        h = rel * oscale[free]
         J = np.empty((len(z), len(z)))
         for j in range(len(z)):
             dz = np.zeros(len(z))
@@ -279,12 +296,15 @@ def find_periodic_orbit(
     def size(r: np.ndarray) -> float:
         return float(np.max(np.abs(r) / oscale[free]))
 
+    base_rel = fd_rel or loop.fd_rel
     z = last[free].copy()
     r, xn, _ = residual(z)
     iterations = 0
     while iterations < max_iter and size(r) >= tol:
         iterations += 1
-        J = jacobian(z, r)
+        # steps no smaller than the current error: the map is only piecewise smooth at the
+        # substep (and sampling) scale, so tiny steps would difference its roughness
+        J = jacobian(z, r, max(base_rel, size(r)))
         try:
             step = np.linalg.solve(J, -r)
         except np.linalg.LinAlgError:
@@ -309,19 +329,21 @@ def find_periodic_orbit(
                 break
         z = z + lam * step
         r, xn = r_new, xn_new
+    if size(r) > accept:
+        raise OrbitNotFound(
+            f"shooting did not converge (relative residual {size(r):.1e} after {iterations} Newton steps): no periodic "
+            "orbit near the simulated trajectory, whose amplitude keeps changing"
+        )
     if size(r) < 1e-6:
-        multipliers = np.linalg.eigvals(jacobian(z, r) + np.eye(len(z)))
+        multipliers = np.linalg.eigvals(jacobian(z, r, base_rel) + np.eye(len(z)))
         stable = bool(np.all(np.abs(multipliers) < 1.0))
+        stability = "Floquet multipliers"
     else:
-        # Converged only to the map's roughness floor: finite-difference multipliers would be noise.
-        # Attracting if a few plain iterations stay at that floor.
+        # Converged only to the map's roughness floor (stick/slip and saturation switching at tick or
+        # substep instants): differenced multipliers would be noise; iterate from a perturbed start.
         multipliers = np.zeros(0)
-        zi, floor = z.copy(), 10.0 * size(r) + 1e-4
-        stable = True
-        for _ in range(3):
-            _, xi, _ = residual(zi)
-            zi = xi[free]
-            stable = stable and size(zi - z) < floor
+        stable = _attracts(residual, z, free, oscale, size, 20.0 * size(r) + 1e-3)
+        stability = "perturbed iterations"
     # Record one period from the fixed point.
     x = last.copy()
     x[0] = 0.0
@@ -329,7 +351,7 @@ def find_periodic_orbit(
     loop.set(x)
     _, T = _to_section(loop, m, max_period * m, fall)
     loop.set(x)
-    tr = _record(loop, max(2, round(T / loop.dt)))
+    tr = record_trajectory(loop, max(2, round(T / loop.dt)))
     return PeriodicOrbit(
         loop=loop.name,
         stats=_stats(tr, T),
@@ -339,8 +361,26 @@ def find_periodic_orbit(
         residual=size(r),
         iterations=iterations,
         stable=stable,
+        stability_method=stability,
         multipliers=multipliers,
     )
+
+
+def _attracts(residual, z: np.ndarray, free: np.ndarray, oscale: np.ndarray, size, delta: float, n: int = 8) -> bool:
+    """Does the map keep a start ``delta`` (relative) off the fixed point near it? Near: within half the
+    initial offset, or within 5% of the orbit's size (the sampled loop's map is rough at the ~1% level:
+    a tick more or less of stick or saturation)."""
+    zi = z + delta * oscale[free] * np.sign(np.arange(len(z)) % 2 - 0.5)
+    d0 = size(zi - z)
+    dev = []
+    try:
+        for _ in range(n):
+            _, xi, _ = residual(zi)
+            zi = xi[free]
+            dev.append(size(zi - z))
+    except OrbitNotFound:
+        return False
+    return max(dev[n // 2:]) < max(0.5 * d0, 0.05)
 
 
 def _orbit_scale(pts: list[np.ndarray]) -> np.ndarray:
@@ -362,7 +402,7 @@ def simulate_limit_cycle(
     base = loop.get()
     base[:4] = x0
     loop.set(base)
-    tr = _record(loop, round(duration / loop.dt))
+    tr = record_trajectory(loop, round(duration / loop.dt))
     th = tr.x[:, 0]
     k0 = round(transient / loop.dt)
     idx = np.nonzero((th[k0:-1] < 0.0) & (th[k0 + 1 :] >= 0.0))[0] + k0

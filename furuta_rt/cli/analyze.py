@@ -126,6 +126,10 @@ def _print(out: dict) -> None:
             con.print(f"describing function ({rep['describing_function']['loop']} loop) vs orbit: "
                       f"period {100 * d['period']:+.1f}%, φ̇ amplitude {100 * d['amplitude_phi_dot']:+.1f}%, "
                       f"φ amplitude {100 * d['amplitude_phi']:+.1f}%, θ amplitude {100 * d['amplitude_theta']:+.1f}%")
+        if abs(o["drift_phi_dot"]) > 1e-6:
+            con.print(f"the orbit drifts: mean arm velocity {o['drift_phi_dot']:.4g} rad/s (φ amplitude about the drift)")
+        if "describing_function_note" in rep:
+            con.print(f"[yellow]note:[/] {rep['describing_function_note']}")
         if "note" in rep:
             con.print(f"[yellow]note:[/] {rep['note']}")
     if "plot" in out:
