@@ -62,25 +62,25 @@ def done_when(port: str) -> dict:
         assert any(s.status & StatusFlags.ENABLED for s in push)
         assert push[-1].phi_count > 10  # ≈ 25 counts: φ ≈ τ t² / 2J'
         assert [s.seq for s in push] == list(range(seqs[-1] + 1, seqs[-1] + 51))
-        # 3. COMMANDs stop: within watchdog_ms (device time) the output is zeroed and the fault latched
+        # 3. COMMANDs stop: the device latches WATCHDOG_TRIPPED and drops ENABLED, ≥ 20 ms (device time)
+        # after the last COMMAND arrived. When that was is the host's lag (up to ~0.2 s on a loaded machine,
+        # samples queue up meanwhile), so only the lower bound is checked here; the exact timing is in the
+        # firmware tests. A trip left over from a host stall in step 2 is cleared by the last COMMAND first.
         last_answered = push[-1]
         after: list[Sample] = []
-        clean = False  # a trip left over from a host stall in step 2 is cleared by the last COMMAND first
+        clean = False
         while True:
             s = host.next_sample(timeout=2.0)
             assert s is not None
             after.append(s)
-            assert len(after) < 100, "watchdog did not trip"
+            assert len(after) < 1000, "watchdog did not trip within 2 s"
             if not s.status & WATCHDOG:
                 clean = True
             elif clean:
                 break
         tripped = after[-1]
         assert not tripped.status & StatusFlags.ENABLED
-        waited_ms = (tripped.t_us - last_answered.t_us) / 1000
-        # ≥ 20 ms after the last COMMAND arrived, which is after SAMPLE push[-1] by the host's own lag (up to
-        # ~0.1 s when this test shares a loaded machine); the exact timing is in the firmware tests.
-        assert 20 <= waited_ms <= 500
+        assert tripped.t_us - last_answered.t_us >= 20_000
         time.sleep(0.05)
         host.poll()
         assert any(st.flags & WATCHDOG for st in host.statuses)
@@ -164,11 +164,14 @@ def test_scheduled_reset_restarts_seq_after_a_new_handshake():
     cfg = build_config(device={"rate_hz": 500, "initial_theta": 0.0}, faults=["reset@0.2"])
     with VirtualDevice(cfg) as dev, MiniHost(dev.port) as host:
         host.handshake()
-        last = None
+        first = last = host.next_sample()
         while (s := host.next_sample(timeout=0.3)) is not None:
             last = s
             answer(host, s, 0.0)
-        assert last is not None and 95 <= last.seq <= 101  # streaming stopped at 0.2 s of device time
+        assert first is not None and last is not None and first.seq == 0
+        # streaming stopped at 0.2 s of plant time: seq 99 is the last, unless the device overran (it skips
+        # timer periods, never seqs) — then the last SAMPLE is still within a few periods of 0.2 s
+        assert last.seq <= 99 and 0.18 <= (last.t_us - first.t_us) * 1e-6 <= 0.198
         assert dev.stats.resets == 1 and not dev.firmware.streaming
         host.handshake()
         s = host.next_sample()
