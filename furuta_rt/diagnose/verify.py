@@ -97,8 +97,11 @@ def predict(rig: RigConfig, effects: Effects, prep: Prepared, fine: States, star
     v = prep.valid
     s_th = float(np.std(prep.theta_f[v])) or 1.0
     s_ph = float(np.std(prep.phi[v])) or 1.0
-    rms = lambda e: float(np.sqrt(np.mean(np.concatenate(e) ** 2)))  # noqa: E731
-    return Prediction(rms(e_th) / s_th, rms(e_ph) / s_ph, len(starts))
+    return Prediction(_rms(e_th) / s_th, _rms(e_ph) / s_ph, len(starts))
+
+
+def _rms(parts: list[np.ndarray]) -> float:
+    return float(np.sqrt(np.mean(np.concatenate(parts) ** 2)))
 
 
 # ---------------------------------------------------------------------------------- closed loop

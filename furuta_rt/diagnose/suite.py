@@ -1,0 +1,239 @@
+"""The benchmark of `diagnose`: concealed-effect recordings of closed-loop balancing, and their scoring.
+
+Each case is a run of furuta_rt.sim.closed_loop.run_closed_loop — the same Simulator and Controller
+that hil_mock and the daemon run — on the thesis rig with sensor noise and encoder/ADC quantisation,
+some with an arm-reference excitation (a slow square wave or a two-sine on φ), with effects alone, in
+pairs or none, at sizes where the nominal model still looks plausible (the loop balances, nothing is
+obviously wrong). Generated runs are cached on disk (they take a few seconds each).
+
+Scoring (``score``), honest about what counts:
+* an injected effect is *detected* when it is reported with its main parameter within 20 % — for
+  input_gain and arm_inertia, 20 % of its departure from nominal (|ĝ − g| ≤ 0.2·|g − 1|), not of the
+  value itself; *detected as look-alike* when it is the declared alternative of a reported ambiguity;
+* a *false discovery* is a reported effect that was not injected, unless it is the reported half of a
+  declared ambiguity whose other half was injected;
+* the fit *improves* when the augmented model's held-out prediction NRMSE is below the nominal one's.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import pickle
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from furuta_rt.config import RigConfig, load_rig
+from furuta_rt.model.effects import EFFECT_TYPES, effects_from_assignments
+from furuta_rt.recording import Recording
+from furuta_rt.sim.closed_loop import run_closed_loop
+
+MAIN = {name: next(iter(cls.model_fields)) for name, cls in EFFECT_TYPES.items()}
+MAIN["arm_stiction"] = "Fs"
+RELATIVE_TO_NOMINAL = {"input_gain": 1.0}  # departure from this value is what is scored
+TOLERANCE = 0.2
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    effects: tuple[str, ...]  # name.param=value assignments (the hil-mock --effect syntax)
+    seed: int
+    reference: str | None = None  # None | "square" | "sine"
+    duration: float = 60.0
+
+    @property
+    def injected(self) -> dict[str, dict[str, float]]:
+        return effects_from_assignments(list(self.effects)).present()
+
+    def key(self) -> str:
+        text = repr((self.effects, self.seed, self.reference, self.duration, CACHE_VERSION))
+        return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+
+CACHE_VERSION = 1
+
+
+def reference_signal(kind: str | None, n: int, rate_hz: float, seed: int) -> np.ndarray | None:
+    """Arm-reference excitation: a square wave (±0.3 rad, 6 s) or two sines (0.3 rad at 1/6 Hz + 0.15 rad)."""
+    if kind is None:
+        return None
+    t = np.arange(n) / rate_hz
+    phase = 0.5 * (seed % 7)
+    if kind == "square":
+        return 0.3 * np.sign(np.sin(2 * np.pi * t / 6.0 + phase))
+    if kind == "sine":
+        return 0.3 * np.sin(2 * np.pi * t / 6.0 + phase) + 0.15 * np.sin(2 * np.pi * t / 2.2 + 1.0 + phase)
+    raise ValueError(f"unknown reference {kind!r}")
+
+
+def generate(case: Case, rig: RigConfig, cache: Path | None = None) -> Recording:
+    """The case's recording (from the cache when there)."""
+    path = cache / f"{case.key()}.pkl" if cache else None
+    if path is not None and path.exists():
+        with path.open("rb") as fh:
+            return pickle.load(fh)
+    n = round(case.duration * rig.control.rate_hz)
+    ref = reference_signal(case.reference, n, rig.control.rate_hz, case.seed)
+    rec = run_closed_loop(rig, case.duration, effects=effects_from_assignments(list(case.effects)), seed=case.seed,
+                          reference=ref)
+    if ref is not None:
+        rec.extra["phi_ref"] = ref
+    rec.meta["case"] = case.name
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with path.open("wb") as fh:
+            pickle.dump(rec, fh)
+    return rec
+
+
+def _c(name: str, seed: int, ref: str | None, *effects: str) -> Case:
+    return Case(name, tuple(effects), seed, ref)
+
+
+def cases() -> list[Case]:
+    """The full suite: effects alone and in pairs, several seeds, null cases, with and without excitation."""
+    return [
+        # nulls
+        _c("null", 1, None), _c("null", 2, "square"), _c("null", 3, "sine"),
+        _c("null", 4, None), _c("null", 5, "square"), _c("null", 6, "sine"),
+        # effects alone
+        _c("arm_coulomb", 11, None, "arm_coulomb.Fc=0.02"),
+        _c("arm_coulomb", 12, "sine", "arm_coulomb.Fc=0.06"),
+        _c("arm_coulomb", 13, "square", "arm_coulomb.Fc=0.1"),
+        _c("arm_viscous", 14, "sine", "arm_viscous.Fv=0.01"),
+        _c("arm_viscous", 15, "square", "arm_viscous.Fv=0.05"),
+        _c("pendulum_viscous", 16, "sine", "pendulum_viscous.bp=0.0001"),
+        _c("pendulum_viscous", 17, "square", "pendulum_viscous.bp=0.0003"),
+        _c("pendulum_viscous", 18, "sine", "pendulum_viscous.bp=0.0005"),
+        _c("theta_offset", 19, None, "theta_offset.offset=0.005"),
+        _c("theta_offset", 20, "sine", "theta_offset.offset=-0.01"),
+        _c("theta_offset", 21, "square", "theta_offset.offset=0.02"),
+        _c("input_delay", 22, "square", "input_delay.delay=0.002"),
+        _c("input_delay", 23, "sine", "input_delay.delay=0.006"),
+        _c("input_delay", 24, "sine", "input_delay.delay=0.01"),
+        _c("input_gain", 25, "sine", "input_gain.gain=0.8"),
+        _c("input_gain", 26, "square", "input_gain.gain=1.2"),
+        _c("arm_spring", 27, "sine", "arm_spring.k=0.01", "arm_spring.phi0=0.2"),
+        _c("arm_spring", 28, "square", "arm_spring.k=0.05"),
+        _c("arm_inertia", 29, "sine", "arm_inertia.J=0.065"),
+        _c("arm_inertia", 30, "square", "arm_inertia.J=0.035"),
+        _c("arm_inertia", 31, "sine", "arm_inertia.J=0.07"),
+        # pairs
+        _c("arm_coulomb+arm_viscous", 41, "sine", "arm_coulomb.Fc=0.05", "arm_viscous.Fv=0.02"),
+        _c("arm_coulomb+theta_offset", 42, None, "arm_coulomb.Fc=0.03", "theta_offset.offset=0.01"),
+        _c("arm_coulomb+pendulum_viscous", 43, "square", "arm_coulomb.Fc=0.05", "pendulum_viscous.bp=0.0003"),
+        _c("arm_viscous+arm_inertia", 44, "sine", "arm_viscous.Fv=0.03", "arm_inertia.J=0.065"),
+        _c("input_delay+input_gain", 45, "square", "input_delay.delay=0.005", "input_gain.gain=0.9"),
+        _c("arm_spring+theta_offset", 46, "sine", "arm_spring.k=0.03", "theta_offset.offset=0.01"),
+        _c("pendulum_viscous+theta_offset", 47, "sine", "pendulum_viscous.bp=0.0002", "theta_offset.offset=-0.008"),
+        _c("input_delay+arm_coulomb", 48, None, "input_delay.delay=0.004", "arm_coulomb.Fc=0.04"),
+    ]
+
+
+def quick_cases() -> list[Case]:
+    """A small subset (what CI can afford)."""
+    wanted = {("null", 2), ("arm_coulomb", 12), ("theta_offset", 20), ("input_delay+input_gain", 45)}
+    return [c for c in cases() if (c.name, c.seed) in wanted]
+
+
+# ---------------------------------------------------------------------------------- scoring
+def _error(name: str, true: dict[str, float], est: dict[str, float]) -> float:
+    key = MAIN[name]
+    t, e = true[key], est.get(key, np.nan)
+    if name == "arm_inertia":
+        ref = load_rig("thesis").plant.arm_inertia
+        return abs(e - t) / abs(t - ref)
+    if name in RELATIVE_TO_NOMINAL:
+        return abs(e - t) / abs(t - RELATIVE_TO_NOMINAL[name])
+    return abs(e - t) / abs(t)
+
+
+@dataclass
+class CaseScore:
+    case: Case
+    detected: dict[str, bool]  # injected effect → found (strict: reported itself)
+    detected_lookalike: dict[str, bool]  # found as the declared alternative of an ambiguity
+    errors: dict[str, float]  # main-parameter error of each injected effect found (either way)
+    false: list[str]
+    nominal: float
+    augmented: float
+    seconds: float
+    reported: list[dict] = field(default_factory=list)
+    ambiguities: list[dict] = field(default_factory=list)
+
+    @property
+    def improved(self) -> bool:
+        return self.augmented < self.nominal
+
+    def as_json(self) -> dict:
+        return {
+            "case": self.case.name, "seed": self.case.seed, "reference": self.case.reference,
+            "injected": self.case.injected, "reported": self.reported, "ambiguities": self.ambiguities,
+            "detected": self.detected, "detected_lookalike": self.detected_lookalike, "errors": self.errors,
+            "false": self.false, "nominal": self.nominal, "augmented": self.augmented, "seconds": self.seconds,
+        }
+
+
+def score(case: Case, diagnosis_json: dict, seconds: float) -> CaseScore:
+    injected = case.injected
+    reported = {e["name"]: e["params"] for e in diagnosis_json["effects"]}
+    alternatives = {
+        a["alternative"]["name"]: (a["effects"][0], a["alternative"]["params"]) for a in diagnosis_json["ambiguities"]
+    }
+    detected, via_alt, errors = {}, {}, {}
+    for name, true in injected.items():
+        if name in reported:
+            errors[name] = _error(name, true, reported[name])
+        elif name in alternatives:
+            errors[name] = _error(name, true, alternatives[name][1])
+        ok = name in errors and errors[name] <= TOLERANCE
+        detected[name] = ok and name in reported
+        via_alt[name] = ok and name not in reported
+    covered = {alternatives[n][0] for n in injected if n in alternatives}
+    false = [n for n in reported if n not in injected and n not in covered]
+    fit = diagnosis_json["fit"]
+    return CaseScore(case, detected, via_alt, errors, false, fit["nominal"], fit["augmented"], seconds,
+                     diagnosis_json["effects"], diagnosis_json["ambiguities"])
+
+
+def run_case(case: Case, rig: RigConfig, cache: Path | None = None, closed_loop: bool = False) -> tuple[CaseScore, dict]:
+    from furuta_rt.diagnose import Options, diagnose
+
+    rec = generate(case, rig, cache)
+    t0 = time.perf_counter()
+    d = diagnose(rec, rig, Options(closed_loop=closed_loop))
+    seconds = time.perf_counter() - t0
+    out = d.to_json()
+    return score(case, out, seconds), out
+
+
+def totals(scores: list[CaseScore]) -> dict:
+    injected = sum(len(s.detected) for s in scores)
+    strict = sum(sum(s.detected.values()) for s in scores)
+    alt = sum(sum(s.detected_lookalike.values()) for s in scores)
+    nulls = [s for s in scores if not s.case.effects]
+    with_effect = [s for s in scores if s.case.effects]
+    errs = [e for s in scores for e in s.errors.values()]
+    return {
+        "cases": len(scores), "effects_injected": injected,
+        "detected": strict, "detected_incl_lookalike": strict + alt,
+        "detection_rate": strict / injected if injected else float("nan"),
+        "detection_rate_incl_lookalike": (strict + alt) / injected if injected else float("nan"),
+        "false_discoveries": sum(len(s.false) for s in scores),
+        "false_discoveries_null_cases": sum(len(s.false) for s in nulls),
+        "null_cases": len(nulls),
+        "fit_improved": sum(s.improved for s in with_effect), "cases_with_effect": len(with_effect),
+        "median_param_error": float(np.median(errs)) if errs else float("nan"),
+        "max_param_error": float(np.max(errs)) if errs else float("nan"),
+        "median_seconds": float(np.median([s.seconds for s in scores])) if scores else float("nan"),
+        "max_seconds": float(np.max([s.seconds for s in scores])) if scores else float("nan"),
+    }
+
+
+def write_json(path: Path, scores: list[CaseScore], extra: dict | None = None) -> None:
+    path.write_text(json.dumps({"cases": [s.as_json() for s in scores], "totals": totals(scores), **(extra or {})},
+                               indent=1, default=float))

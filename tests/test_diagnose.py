@@ -1,0 +1,164 @@
+"""`furuta-rt diagnose` on a small subset of the concealed-effect suite, its signal path and its CLI."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from furuta_rt.cli import main
+from furuta_rt.config import load_rig
+from furuta_rt.diagnose import Options, diagnose, suite
+from furuta_rt.diagnose.signals import GaussianFilter, prepare
+from furuta_rt.diagnose.verify import quiet
+from furuta_rt.io.csv import write_csv
+from furuta_rt.model.plant import FurutaPlant
+from furuta_rt.recording import Recording
+from furuta_rt.sim.closed_loop import run_closed_loop
+
+FAST = Options(closed_loop=False, max_windows=15)
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return load_rig("thesis")
+
+
+@pytest.fixture(scope="module")
+def recordings(rig, tmp_path_factory):
+    """The CI subset of the suite, shortened to 30 s each (generated once per test run)."""
+    cache = tmp_path_factory.mktemp("suite")
+    out = {}
+    for case in suite.quick_cases():
+        short = dataclasses.replace(case, duration=30.0)
+        out[case.name] = (short, suite.generate(short, rig, cache))
+    return out
+
+
+def test_kernel_is_exact_for_a_held_input() -> None:
+    """K*φ̈ from samples (second differences through the Gaussian) equals K applied to the held acceleration."""
+    dt, n = 0.002, 4000
+    rng = np.random.default_rng(0)
+    a = np.cumsum(rng.standard_normal(n)) * 0.1
+    v = np.concatenate([[0.0], np.cumsum(a * dt)])[:n]
+    phi = np.concatenate([[0.0], np.cumsum(v[:-1] * dt + 0.5 * a[:-1] * dt * dt)])
+    f = GaussianFilter.build(0.02, dt)
+    inner = slice(100, -100)
+    np.testing.assert_allclose(f.apply(phi, 2)[inner], f.apply_held(a, 0.0)[inner], rtol=0, atol=1e-9 * np.abs(a).max())
+    # the held kernel integrates to one and shifts with the lag
+    m0, w = f.hold_kernel(0.002)
+    assert w.sum() == pytest.approx(1.0, abs=1e-12)
+    centre = np.sum((np.arange(len(w)) + m0) * dt * w)
+    assert centre == pytest.approx(0.002 + dt / 2, abs=1e-9)
+
+
+def test_inverse_dynamics_residual_vanishes_on_true_states(rig) -> None:
+    """With the true states (no quantisation, no noise) eq. 4 through the kernel balances the held command."""
+    rec = run_closed_loop(rig, 6.0, seed=3)
+    x = rec.extra
+    f = GaussianFilter.build(0.03, rec.dt)
+    th, ph = x["true_theta"], x["true_phi"]
+    tp, ta = FurutaPlant(rig.lumped()).inverse_dynamics(
+        f.apply(th), f.apply(x["true_theta_dot"]), f.apply(ph, 1), f.apply(x["true_theta_dot"], 1), f.apply(ph, 2)
+    )
+    held = f.apply_held(rec.u, rig.control.command_delay_ticks * rec.dt)
+    inner = slice(200, -200)
+    assert np.std((ta - held)[inner]) < 1e-4 * np.std(held[inner])
+    assert np.std(tp[inner]) < 1e-5
+
+
+def test_bessel_path_is_inverted(rig) -> None:
+    """θ reconstructed from the filtered θ_f, θ̇_f matches the true θ (the 50 rad/s path lags ~27 ms)."""
+    rec = run_closed_loop(quiet(rig), 6.0, seed=4, x0=(0.1, 0.0, 0.0, 0.0))
+    s = prepare(rec, quiet(rig)).states(0.01)
+    truth = GaussianFilter.build(0.01, rec.dt).apply(rec.extra["true_theta"])
+    inner = slice(100, 1500)  # the recovery from θ = 0.1 rad
+    err = np.std((s.theta - truth)[inner])
+    lag_err = np.std((GaussianFilter.build(0.01, rec.dt).apply(rec.theta) - truth)[inner])
+    assert err < 0.1 * lag_err
+
+
+def test_null_case_reports_no_effect(rig, recordings) -> None:
+    _, rec = recordings["null"]
+    d = diagnose(rec, rig, FAST)
+    assert d.names == []
+    assert d.fit["nominal"] == d.fit["augmented"]
+    assert "consistent with the nominal model" in d.located
+
+
+def test_arm_coulomb_found_with_its_level(rig, recordings) -> None:
+    case, rec = recordings["arm_coulomb"]
+    d = diagnose(rec, rig, FAST)
+    assert d.names == ["arm_coulomb"]
+    fc = case.injected["arm_coulomb"]["Fc"]
+    assert d.effects[0].params["Fc"] == pytest.approx(fc, rel=0.2)
+    assert d.fit["augmented"] < d.fit["nominal"]
+    assert "arm equation" in d.located and "sgn(φ̇)" in d.located
+
+
+def test_theta_offset_found_in_the_pendulum_equation(rig, recordings) -> None:
+    case, rec = recordings["theta_offset"]
+    d = diagnose(rec, rig, FAST)
+    assert d.names == ["theta_offset"]
+    assert d.effects[0].equation == "pendulum"
+    assert d.effects[0].params["offset"] == pytest.approx(case.injected["theta_offset"]["offset"], rel=0.2)
+    # its look-alike (a cable spring) is told apart: it would act in the other equation
+    assert any(set(a["effects"]) == {"theta_offset", "arm_spring"} for a in d.lookalikes)
+
+
+def test_delay_and_gain_pair_found(rig, recordings) -> None:
+    case, rec = recordings["input_delay+input_gain"]
+    d = diagnose(rec, rig, FAST)
+    found = {e.name: e.params for e in d.effects}
+    alternatives = {a["alternative"]["name"]: a["alternative"]["params"] for a in d.ambiguities}
+    assert found["input_delay"]["delay"] == pytest.approx(0.005, rel=0.2)
+    gain = found.get("input_gain") or alternatives.get("input_gain")
+    assert gain is not None and abs(gain["gain"] - 0.9) < 0.2 * 0.1
+    s = suite.score(case, d.to_json(), d.seconds)
+    assert s.false == []
+
+
+def test_cli_diagnoses_a_default_rig_csv_without_config(recordings, tmp_path) -> None:
+    _, rec = recordings["arm_coulomb"]
+    path = tmp_path / "run.csv"
+    write_csv(rec, path)
+    out = tmp_path / "d.json"
+    report = tmp_path / "report"
+    assert main(["diagnose", str(path), "--json", str(out), "--report", str(report)]) == 0
+    d = json.loads(out.read_text())
+    assert {"effects", "fit", "located"} <= set(d)
+    assert set(d["fit"]) == {"metric", "nominal", "augmented"}
+    assert [e["name"] for e in d["effects"]] == ["arm_coulomb"]
+    assert set(d["effects"][0]) == {"name", "params"} and set(d["effects"][0]["params"]) == {"Fc"}
+    assert isinstance(d["located"], str) and d["located"]
+    assert d["rig"] == "thesis"
+    assert (report / "summary.md").exists() and (report / "residuals.png").exists()
+
+
+@pytest.mark.parametrize(
+    ("content", "needle"),
+    [
+        (None, "does not exist"),
+        ("t,theta,u\n0,0,0\n0.002,0,0\n", "missing column"),
+        ("t,theta,phi,u\n" + "".join(f"{k * 0.002},0,0,0\n" for k in range(50)), "at least 200"),
+        ("t,theta,phi,u\n" + "".join(f"{k * 0.002},{'nan' if k == 7 else 0},0,0\n" for k in range(400)), "not finite"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2(tmp_path, capsys, content, needle) -> None:
+    path = tmp_path / "bad.csv"
+    if content is not None:
+        path.write_text(content)
+    assert main(["diagnose", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and needle in err and "Traceback" not in err
+
+
+def test_too_short_recording_is_refused(rig) -> None:
+    from furuta_rt.errors import UserError
+
+    t = np.arange(300) * 0.002
+    rec = Recording(t=t, theta=np.zeros(300), phi=np.zeros(300), u=np.zeros(300))
+    with pytest.raises(UserError, match="needs at least"):
+        diagnose(rec, rig, FAST)
