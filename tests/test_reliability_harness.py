@@ -181,7 +181,7 @@ const lz4 = require("@foxglove/wasm-lz4");
       else if (rec.type === "Message") {
         const topic = channels.get(rec.channelId);
         topics[topic] = (topics[topic] || 0) + 1;
-        last[topic] = Number(rec.logTime);
+        last[topic] = rec.logTime.toString();  // ns as text: a JS number would round it
       }
     }
   } catch (e) {
@@ -525,8 +525,55 @@ def traceback_free(text: str) -> bool:
     return "Traceback" not in text
 
 
+# ------------------------------------------------------------------ running CLI cases as an unprivileged user
+UNPRIVILEGED = 65534  # nobody/nogroup
+
+
+def as_user_main(cases_json: str) -> int:
+    """``python tests/test_reliability_harness.py asuser '{"name": [argv...]}'``: import the whole CLI as
+    root (the interpreter may live under an unreadable /root), drop to uid/gid 65534, run each argv
+    through ``furuta_rt.cli.main`` and print {"name": [exit code, stderr]} as one JSON line. Exceptions
+    that escape main are reported as exit 99 with their traceback text."""
+    import importlib
+    import io
+    import pkgutil
+    import traceback
+    from contextlib import redirect_stderr, redirect_stdout
+
+    import serial
+    import serial.serialposix  # noqa: F401
+
+    import furuta_rt
+    from furuta_rt.cli import build_parser, main
+
+    for info in pkgutil.walk_packages(furuta_rt.__path__, "furuta_rt."):
+        with contextlib.suppress(Exception):
+            importlib.import_module(info.name)
+    build_parser()
+    os.setgroups([])
+    os.setgid(UNPRIVILEGED)
+    os.setuid(UNPRIVILEGED)
+    os.environ["HOME"] = "/tmp"
+    results: dict[str, Any] = {"__uid__": os.getuid()}
+    for name, argv in json.loads(cases_json).items():
+        err, out = io.StringIO(), io.StringIO()
+        with redirect_stderr(err), redirect_stdout(out):
+            try:
+                rc = main(argv)
+            except SystemExit as exc:
+                rc = exc.code if isinstance(exc.code, int) else 1
+            except BaseException:
+                rc = 99
+                err.write(traceback.format_exc())
+        results[name] = [rc, err.getvalue()]
+    print(json.dumps(results))
+    return 0
+
+
 if __name__ == "__main__":
+    sys.path.insert(0, str(ROOT))
     if len(sys.argv) > 1 and sys.argv[1] == "mock":
-        sys.path.insert(0, str(ROOT))
         raise SystemExit(recording_mock_main(sys.argv[2:]))
-    raise SystemExit("usage: test_reliability_harness.py mock RECORD.json [hil-mock args]")
+    if len(sys.argv) > 2 and sys.argv[1] == "asuser":
+        raise SystemExit(as_user_main(sys.argv[2]))
+    raise SystemExit("usage: test_reliability_harness.py mock RECORD.json [hil-mock args] | asuser CASES_JSON")
