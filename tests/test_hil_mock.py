@@ -8,8 +8,10 @@ every SAMPLE with CLEAR_FAULT added whenever a fault is latched, so a host stall
 
 from __future__ import annotations
 
+import json
 import time
 from itertools import pairwise
+from pathlib import Path
 
 import pytest
 import serial
@@ -87,15 +89,20 @@ def done_when(port: str) -> dict:
         return {"samples": got + push + after}
 
 
-def test_done_when_subprocess():
-    proc, port = start_mock_subprocess(["--rate", "500", "--initial-theta", "0"])
+def test_done_when_subprocess(tmp_path):
+    link, stats = tmp_path / "ttyMOCK0", tmp_path / "stats.json"
+    proc, port = start_mock_subprocess(
+        ["--rate", "500", "--initial-theta", "0", "--link", str(link), "--stats-json", str(stats)]
+    )
     try:
-        assert port.startswith("/dev/pts/")
-        done_when(port)
+        assert port.startswith("/dev/pts/") and link.resolve() == Path(port)
+        done_when(str(link))  # a stable name, as /dev/ttyUSB0 would be
     finally:
         err = stop_mock_subprocess(proc)
-    assert proc.returncode == 0
+    assert proc.returncode == 0 and not link.exists()
     assert "watchdog trips" in err and "late ticks" in err and "worst" in err
+    st = json.loads(stats.read_text())
+    assert st["watchdog_trips"] >= 1 and st["samples_sent"] >= 550 and st["handshakes"] == 1
 
 
 def test_done_when_in_process():

@@ -84,6 +84,20 @@ def test_hello_ack_reports_the_rig_and_streaming_starts_at_seq_0():
     assert [s.t_us for s in got] == [12_000, 14_000, 16_000]  # device clock: 2 ms per tick since boot (tick 5 = seq 0)
 
 
+@pytest.mark.parametrize(("rig", "kind"), [("thesis", 0), ("qube_servo2", 1), ("macstepien", None)])
+def test_every_shipped_rig_serves(rig, kind):
+    cfg = build_config(rig=rig)
+    r = cfg.load_rig()
+    fw = Firmware(r, RigModel.from_config(r, cfg.effects), cfg.device, cfg.rate_hz(r))
+    fw.receive(encode(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 1)))
+    fw.tick()
+    ack, sample = StreamDecoder().feed(b"".join(fw.tx))
+    assert type(ack) is HelloAck and type(sample) is Sample
+    assert ack.actuator_full_scale == pytest.approx(r.actuator.limit, rel=1e-7)
+    assert ack.actuator_kind == (kind if kind is not None else int(r.actuator.kind != "torque"))
+    assert ack.phi_counts_per_rev == r.sensors.encoder_counts_per_rev and ack.sample_rate_hz == r.control.rate_hz
+
+
 def test_wrong_schema_hash_is_refused_with_the_devices_own_identity():
     b = Bench()
     b.send(encode(Hello(PROTOCOL_VERSION, SCHEMA_HASH ^ 1, 5)))
