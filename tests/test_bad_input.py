@@ -16,6 +16,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Iterator
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
@@ -349,3 +350,48 @@ def test_permission_denied_as_unprivileged_user(files: dict[str, Path]) -> None:
         except AssertionError as exc:
             problems.append(f"{name}: {exc}")
     assert not problems, "\n".join(problems)
+
+
+# ------------------------------------------------------------------ a port with no (or a vanishing) device behind it
+def _run_on_pty(on_hello_close: bool) -> subprocess.CompletedProcess[str]:
+    """``furuta-rt run --port`` on a raw pty served by nobody; with ``on_hello_close`` the "device" closes
+    its side as soon as the host's first bytes (the HELLO) arrive."""
+    import select
+
+    fd, port = open_raw_pty()
+    proc = subprocess.Popen([*FURUTA_RT, "run", "--port", port, "--duration", "1", "--no-rt", "--no-tui"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        if on_hello_close:
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                if select.select([fd], [], [], 0.1)[0]:
+                    try:
+                        if os.read(fd, 4096):
+                            break
+                    except OSError:  # EIO until the host opens the port
+                        time.sleep(0.01)
+            os.close(fd)
+            fd = -1
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if fd >= 0:
+            os.close(fd)
+        if proc.poll() is None:
+            proc.kill()
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+
+
+def test_port_with_no_device_answering() -> None:
+    proc = _run_on_pty(on_hello_close=False)
+    _check(proc.returncode, proc.stderr, "HELLO_ACK")
+
+
+def test_device_vanishing_during_the_handshake() -> None:
+    """The port closes while the host waits for HELLO_ACK (device unplugged, mock crashed): a clear line,
+    non-zero exit, no traceback."""
+    proc = _run_on_pty(on_hello_close=True)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert proc.returncode in (1, 2), proc.stderr
+    assert len(lines) == 1 and "error" in lines[0], proc.stderr
