@@ -17,10 +17,12 @@ from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
 
 COMP_MODES = ("none", "coulomb", "stiction", "lugre")
-MOCK_TIMEOUT_MS = 100.0
+MOCK_TIMEOUT_MS = 500.0
 """With --mock the timing trips (link loss, device watchdog, repeated overruns) tolerate stalls up to
-this long: hil-mock is a Python process on a shared host, and it and the pseudo-terminal can stall
-for tens of ms under load, where a rig's MCU and USB link do not. Measured and logged all the same."""
+this long: hil-mock is a Python process, and a pseudo-terminal hands bytes over in kernel workers that
+are not real-time; on a loaded 2-core machine both stall now and then for 100-200 ms (measured), where a
+rig's MCU and USB link do not. The pendulum survives such stalls; they are measured and logged all the
+same. A rig (--port) gets the strict limits of its [safety] table."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -78,8 +80,9 @@ def effective_rig(rig: RigConfig, rate: int | None, mode: str | None, gains: lis
     return rig.model_copy(update={"control": control, "compensation": comp})
 
 
-def mock_arguments(args: argparse.Namespace, rig_source: str, rate: int) -> list[str]:
-    out = ["--rig", rig_source, "--rate", str(rate), "--initial-theta", repr(args.mock_initial_theta)]
+def mock_arguments(args: argparse.Namespace, rig_source: str, rate: int, watchdog_ms: int) -> list[str]:
+    out = ["--rig", rig_source, "--rate", str(rate), "--watchdog-ms", str(watchdog_ms),
+           "--initial-theta", repr(args.mock_initial_theta)]
     for e in args.mock_effect:
         out += ["--effect", e]
     for f in args.mock_fault:
@@ -133,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
         mode=rig.compensation.mode,
         duration=args.duration,
         port=args.port,
-        mock_args=mock_arguments(args, rig_source, rate) if args.mock else None,
+        mock_args=mock_arguments(args, rig_source, rate, watchdog) if args.mock else None,
         baud=args.baud,
         watchdog_ms=watchdog,
         link_timeout_s=link_ms * 1e-3,

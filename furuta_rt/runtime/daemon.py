@@ -17,6 +17,7 @@ sent and the log closed; 1 the supervisor tripped (reason printed); 2 user error
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import dataclasses
 import json
@@ -26,21 +27,17 @@ import socket
 import sys
 import time
 from dataclasses import dataclass, field
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
 from firmware_protocol import DEFAULT_WATCHDOG_MS
 from furuta_rt.config import RigConfig
-from furuta_rt.control.controller import Controller
 from furuta_rt.errors import UserError
-from furuta_rt.io.log_schema import DEVICE_METADATA
+from furuta_rt.io.mcap_log import run_metadata
 from furuta_rt.runtime.hardware import DeviceInfo, SerialHardware
 from furuta_rt.runtime.logger import LogSetup, logger_process
-from furuta_rt.runtime.loop import ControlLoop, LoopResult, LoopSettings
 from furuta_rt.runtime.rt import setup_realtime
 from furuta_rt.runtime.summary import format_summary, summary_dict
-from furuta_rt.runtime.supervisor import Supervisor, SupervisorLimits
 
 LOG_QUEUE_BATCHES = 200  # 20 s of ticks at 10 batches/s before the loop starts dropping
 CHILD_START_TIMEOUT_S = 60.0
@@ -67,13 +64,6 @@ class RunOptions:
     warnings: list[str] = field(default_factory=list)
 
 
-def _version() -> str:
-    try:
-        return version("furuta-rt")
-    except PackageNotFoundError:
-        return "unknown"
-
-
 def _say(message: str) -> None:
     print(f"furuta-rt: {message}", file=sys.stderr, flush=True)
 
@@ -87,12 +77,6 @@ def _check_log_path(path: str) -> None:
             pass
     except OSError as err:
         raise UserError(f"cannot write the log {path}: {err.strerror}") from None
-
-
-def _rig_toml(rig: RigConfig) -> str:
-    from furuta_rt.io.rig_toml import rig_to_toml
-
-    return rig_to_toml(rig)
 
 
 def _check_device(info: DeviceInfo, rig: RigConfig, warnings: list[str]) -> None:
@@ -125,14 +109,18 @@ class _Children:
         self.dash_q: Any = None
         self.dashboard: Any = None
 
-    def start_logger(self, setup: LogSetup) -> None:
+    def spawn_logger(self, setup: LogSetup) -> None:
+        """Start the logger process (returns at once; ``wait_logger`` waits for it to be ready)."""
         self.log_q = self.ctx.Queue(maxsize=LOG_QUEUE_BATCHES)
-        ready = self.ctx.Event()
-        proc = self.ctx.Process(target=logger_process, args=(setup, self.log_q, ready), name="furuta-rt-logger")
+        self._ready = self.ctx.Event()
+        proc = self.ctx.Process(target=logger_process, args=(setup, self.log_q, self._ready), name="furuta-rt-logger")
         proc.start()
         self.logger = proc
-        if not ready.wait(CHILD_START_TIMEOUT_S):
-            raise UserError(f"the logger process did not start within {CHILD_START_TIMEOUT_S:g} s (log {setup.path})")
+        self._log_path = setup.path
+
+    def wait_logger(self) -> None:
+        if self.logger is not None and not self._ready.wait(CHILD_START_TIMEOUT_S):
+            raise UserError(f"the logger process did not start within {CHILD_START_TIMEOUT_S:g} s (log {self._log_path})")
 
     def start_dashboard(self, title: str) -> None:
         from furuta_rt.runtime.dashboard import dashboard_process
@@ -187,40 +175,59 @@ def _stop_mock(proc: Any) -> str:
     return stop_mock_subprocess(proc)
 
 
+def _limits(opts: RunOptions, rate: int) -> Any:
+    from furuta_rt.runtime.supervisor import SupervisorLimits
+
+    limits = SupervisorLimits.from_config(opts.rig.safety, rate)
+    if opts.max_overruns is not None:
+        limits = dataclasses.replace(limits, max_consecutive_overruns=opts.max_overruns)
+    return limits
+
+
+def _limits_text(opts: RunOptions, rate: int) -> str:
+    lim = _limits(opts, rate)
+    return (f"|θ| < {lim.theta_limit:g} rad, |φ| < {lim.phi_limit:g} rad, link timeout {opts.link_timeout_s * 1e3:g} ms, "
+            f"device watchdog {opts.watchdog_ms} ms, trip after {lim.max_consecutive_overruns} overruns in a row")
+
+
 def run_daemon(opts: RunOptions) -> int:
     """Run one session; returns the exit code (UserError propagates for exit 2)."""
     rig = opts.rig
     rate = int(rig.control.rate_hz)
     warnings = list(opts.warnings)
-    ctrl = Controller.from_rig(rig, mode=opts.mode, gains=opts.gains)  # type: ignore[arg-type]
-    limits = SupervisorLimits.from_config(rig.safety, rate)
-    if opts.max_overruns is not None:
-        limits = dataclasses.replace(limits, max_consecutive_overruns=opts.max_overruns)
-    sup = Supervisor(limits)
     if opts.log_path:
         _check_log_path(opts.log_path)
     children = _Children()
+    mock_start: concurrent.futures.Future | None = None
     mock_proc = None
     hw: SerialHardware | None = None
-    result: LoopResult | None = None
+    result = None
     mock_stats = ""
+    log_ok = True
     try:
-        port = opts.port
+        # start-up in parallel: the logger process, hil-mock (a few seconds of imports each) and, here,
+        # the controller's own imports; the device handshake comes last, right before the first tick
+        if opts.log_path:
+            children.spawn_logger(LogSetup(path=opts.log_path, rig=rig))
         if opts.mock_args is not None:
-            mock_proc, port = _start_mock(opts.mock_args)
+            pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="mock-start")
+            mock_start = pool.submit(_start_mock, opts.mock_args)
+            pool.shutdown(wait=False)
+        from furuta_rt.control.controller import Controller
+        from furuta_rt.runtime.loop import ControlLoop, LoopSettings
+        from furuta_rt.runtime.supervisor import Supervisor
+
+        ctrl = Controller.from_rig(rig, mode=opts.mode, gains=opts.gains)  # type: ignore[arg-type]
+        limits = _limits(opts, rate)
+        sup = Supervisor(limits)
+        port = opts.port
+        if mock_start is not None:
+            mock_proc, port = mock_start.result()
         assert port is not None
         hw = SerialHardware(port, opts.baud)
         hw.open()
         warnings += hw.warnings
-        if opts.log_path:
-            run_meta = {
-                "mode": opts.mode, "gains": json.dumps(list(ctrl.gains)), "rate_hz": str(rate), "port": port,
-                "version": _version(), "rig_source": opts.rig_source, "mock": json.dumps(opts.mock_args),
-                "duration": str(opts.duration), "host": socket.gethostname(),
-                "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            }
-            children.start_logger(LogSetup(path=opts.log_path, rig_name=rig.name, rig_toml=_rig_toml(rig),
-                                           rig_json=rig.model_dump_json(), run=run_meta))
+        children.wait_logger()
         applied, rt_warnings = setup_realtime(opts.realtime)
         warnings += rt_warnings
         sys.setswitchinterval(1e-4)  # a queue feeder thread must give the GIL back quickly
@@ -231,7 +238,8 @@ def run_daemon(opts: RunOptions) -> int:
         if children.log_q is not None:  # the first put starts the queue's feeder thread: not in a tick
             children.log_q.put(("event", (time.time_ns(), "INFO", f"connecting to {port} at {rate} Hz")))
         info = hw.handshake(rate, opts.watchdog_ms)
-        _check_device(info, rig, late_warnings := [])
+        late_warnings: list[str] = []
+        _check_device(info, rig, late_warnings)
         if not opts.tui:  # with the dashboard they show as its events
             for w in late_warnings:
                 _say(f"warning: {w}")
@@ -244,25 +252,32 @@ def run_daemon(opts: RunOptions) -> int:
             on_event=None if opts.tui else (lambda level, msg: _say(msg if level == "INFO" else f"{level.lower()}: {msg}")),
         )
         if children.log_q is not None:
-            children.log_q.put_nowait(("metadata", DEVICE_METADATA, info.metadata()))
+            run_meta = run_metadata(
+                opts.mode, list(ctrl.gains), rate, port=port, rig_source=opts.rig_source, host=socket.gethostname(),
+                mock=json.dumps(opts.mock_args), duration=str(opts.duration), started=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                link_timeout_ms=f"{opts.link_timeout_s * 1e3:g}", watchdog_ms=str(opts.watchdog_ms),
+                max_consecutive_overruns=str(limits.max_consecutive_overruns),
+            )
+            children.log_q.put_nowait(("open", info.metadata(), run_meta))
         loop.event("INFO", f"device {info.ack.device_id:#010x} firmware {info.firmware} at {port}, {info.rate_hz} Hz, "
                    f"watchdog {info.watchdog_ms} ms; {', '.join(applied)}")
         for w in warnings + late_warnings:
             loop.event("WARNING", w)
         warnings += late_warnings
         result = loop.run()
-        result.trip_message = sup.transitions[-1].message if sup.tripped and sup.transitions else ""
     finally:
         if hw is not None:
             hw.stop()
             hw.close()
         children.stop_dashboard()
         summary = "" if result is None else format_summary(result, rate_hz=rate, mode=opts.mode, rig=rig.name,
-                                                            log_path=opts.log_path)
+                                                            log_path=opts.log_path, limits=_limits_text(opts, rate))
         log_ok = children.close_logger(summary)
+        if mock_proc is None and mock_start is not None:  # start-up failed elsewhere: do not leave it running
+            with contextlib.suppress(Exception):
+                mock_proc = mock_start.result(timeout=60)[0]
         if mock_proc is not None:
             mock_stats = _stop_mock(mock_proc)
-    assert result is not None
     print(summary, flush=True)
     if mock_stats.strip():
         print("\n".join("  " + line for line in mock_stats.strip().splitlines()), flush=True)
@@ -271,9 +286,7 @@ def run_daemon(opts: RunOptions) -> int:
     if opts.summary_json:
         data = summary_dict(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path, warnings=warnings)
         Path(opts.summary_json).write_text(json.dumps(data, indent=1) + "\n")
-    if result.end == "trip":
-        return EXIT_TRIPPED
-    return EXIT_OK
+    return EXIT_TRIPPED if result.end == "trip" else EXIT_OK
 
 
 def default_tui() -> bool:

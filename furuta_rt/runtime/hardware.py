@@ -149,7 +149,7 @@ class SerialHardware(HardwareInterface):
 
     HANDSHAKE_RETRY_S = 0.1
     HANDSHAKE_TRIES = 20
-    CONFIG_TIMEOUT_S = 1.0
+    CONFIG_TIMEOUT_S = 2.0
 
     def __init__(self, port: str, baudrate: int = 1_000_000) -> None:
         self.port = port
@@ -166,6 +166,7 @@ class SerialHardware(HardwareInterface):
         self.samples = 0
         self.info: DeviceInfo | None = None
         self.warnings: list[str] = []
+        self._stopped = False
 
     # ---------------------------------------------------------------- setup
     def open(self) -> None:
@@ -223,6 +224,7 @@ class SerialHardware(HardwareInterface):
             self.open()
         self._ser.reset_input_buffer()  # type: ignore[attr-defined]
         self.decoder.reset()
+        self._stopped = False
         ack = None
         hellos: dict[int, object] = {}
         self._send(b"\x00")  # PROTOCOL.md §2.1: flush any partial frame at the device
@@ -243,17 +245,21 @@ class SerialHardware(HardwareInterface):
         except HandshakeError as err:
             raise UserError(f"handshake with {self.port} failed: {err}; flash firmware built from this "
                             "firmware_protocol version") from None
-        self._queue.clear()
-        self._send(encode(Config(rate_hz=rate_hz, watchdog_ms=watchdog_ms)))
-        status = self._await(Status, self.CONFIG_TIMEOUT_S)
-        if status is None:
-            raise UserError(f"{self.port} did not answer CONFIG with a STATUS; check the firmware")
-        self.status = status  # type: ignore[assignment]
-        if status.flags & StatusFlags.CONFIG_REJECTED or status.rate_hz != rate_hz:  # type: ignore[attr-defined]
-            raise UserError(f"the device rejected rate {rate_hz} Hz / watchdog {watchdog_ms} ms "
-                            f"(it runs at {status.rate_hz} Hz); choose a rate the firmware supports with --rate")  # type: ignore[attr-defined]
-        self.info = DeviceInfo(ack=ack, rate_hz=status.rate_hz, watchdog_ms=status.watchdog_ms)  # type: ignore[arg-type, attr-defined]
-        self._queue.clear()  # samples from before the CONFIG took effect are not ticks of this run
+        if ack.sample_rate_hz == rate_hz and ack.watchdog_ms == watchdog_ms:  # type: ignore[attr-defined]
+            self.info = DeviceInfo(ack=ack, rate_hz=rate_hz, watchdog_ms=watchdog_ms)  # type: ignore[arg-type]
+        else:  # PROTOCOL.md §5: CONFIG is needed only to change what the HELLO_ACK reports
+            self._queue.clear()
+            self._send(encode(Config(rate_hz=rate_hz, watchdog_ms=watchdog_ms)))
+            status = self._await(Status, self.CONFIG_TIMEOUT_S)
+            if status is None:
+                raise UserError(f"{self.port} did not answer CONFIG with a STATUS; check the firmware")
+            self.status = status  # type: ignore[assignment]
+            if status.flags & StatusFlags.CONFIG_REJECTED or status.rate_hz != rate_hz:  # type: ignore[attr-defined]
+                raise UserError(f"the device rejected rate {rate_hz} Hz / watchdog {watchdog_ms} ms (it runs at "
+                                f"{status.rate_hz} Hz); choose a rate the firmware supports with --rate")  # type: ignore[attr-defined]
+            self.info = DeviceInfo(ack=ack, rate_hz=status.rate_hz, watchdog_ms=status.watchdog_ms)  # type: ignore[arg-type, attr-defined]
+        while len(self._queue) > 1:  # older samples are not ticks of this run; the newest is answered first
+            self._queue.popleft()
         return self.info
 
     # ---------------------------------------------------------------- per tick
@@ -285,8 +291,9 @@ class SerialHardware(HardwareInterface):
         self._send(encode_command(seq, counts, flags))
 
     def stop(self) -> None:
-        if self._fd < 0:
+        if self._fd < 0 or self._stopped:
             return
+        self._stopped = True
         for frame in (encode_command(self._last_seq, 0, 0), encode(Stop(reason=0))):
             try:
                 self._send(frame)

@@ -31,16 +31,11 @@ from typing import Any, Protocol
 from firmware_protocol import COMMAND_FULL_SCALE, FAULT_MASK, CommandFlags, StatusFlags
 from furuta_rt.control.controller import Controller, Measurement
 from furuta_rt.runtime.hardware import HardwareInterface, LinkLost
-from furuta_rt.runtime.supervisor import STATE_NAMES, State, Supervisor, TripReason
+from furuta_rt.runtime.records import STATE_NAMES, TICK_RECORD
+from furuta_rt.runtime.supervisor import State, Supervisor, TripReason
 from furuta_rt.runtime.timing import DeviceClock, Histogram, RunningStats
 
-TICK_RECORD: tuple[str, ...] = (
-    "wall_ns", "dev_ns", "seq", "t", "theta_adc", "theta_dot_adc", "phi_count", "status",
-    "theta", "theta_dot", "phi", "phi_dot_hat", "u", "u_lin", "u_comp", "saturated", "state", "reset",
-    "period_us", "read_us", "update_us", "write_us", "latency_us", "lateness_us",
-    "overruns", "seq_gaps", "crc_errors", "dropped",
-)  # fmt: skip
-"""Field order of the tuples the loop sends to the logger (``state`` is an index into STATE_NAMES)."""
+__all__ = ["TICK_RECORD", "ControlLoop", "LoopResult", "LoopSettings"]
 
 _ENABLE = int(CommandFlags.ENABLE)
 _CLEAR_FAULT = int(CommandFlags.CLEAR_FAULT)
@@ -70,7 +65,7 @@ class LoopSettings:
 class LoopResult:
     ticks: int = 0
     balancing_ticks: int = 0
-    end: str = "duration"  # duration | trip | operator_stop | link_loss | error
+    end: str = "duration"  # duration | trip | operator_stop | error
     trip_reason: str = ""
     trip_message: str = ""
     final_state: str = "idle"
@@ -233,6 +228,8 @@ class ControlLoop:
             r = self.result
             r.final_state = self.sup.state.label
             r.trip_reason = self.sup.reason
+            if self.sup.tripped:
+                r.trip_message = self.sup.transitions[-1].message
             r.crc_errors = self.hw.crc_errors
             self._flush_batch()
         return self.result

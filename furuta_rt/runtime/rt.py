@@ -76,6 +76,13 @@ def setup_realtime(enable: bool = True, priority: int = 50, cpu: int | None = No
     if not enable:
         return applied, []
     warnings: list[str] = []
+    # memory first: mlockall faults in every page of the process (hundreds of ms of kernel time), which
+    # must not run at real-time priority where it would hold a CPU against other real-time tasks
+    mem_warning = lock_memory()
+    if mem_warning:
+        warnings.append(mem_warning)
+    else:
+        applied.append("memory locked")
     fifo_warning = set_fifo(priority)
     if fifo_warning:
         warnings.append(fifo_warning)
@@ -87,9 +94,4 @@ def setup_realtime(enable: bool = True, priority: int = 50, cpu: int | None = No
                 warnings.append(w)
             if pinned is not None:
                 applied.append(f"pinned to CPU {pinned}")
-    mem_warning = lock_memory()
-    if mem_warning:
-        warnings.append(mem_warning)
-    else:
-        applied.append("memory locked")
     return applied, warnings

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from furuta_rt.runtime.loop import LoopResult
+if TYPE_CHECKING:
+    from furuta_rt.runtime.loop import LoopResult
 
 ENDINGS = {
     "duration": "duration reached",
@@ -50,8 +51,8 @@ def _p(h: Any, unit: str = "µs") -> str:
     return f"p50 {h.percentile(0.5):.0f}  p99 {h.percentile(0.99):.0f}  max {h.max:.0f} {unit}"
 
 
-def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path: str | None) -> str:
-    """The human-readable summary printed at the end of every run."""
+def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path: str | None, limits: str = "") -> str:
+    """The human-readable summary printed at the end of every run (``limits``: the safety limits used)."""
     nominal = 1e6 / rate_hz
     ending = ENDINGS.get(r.end, r.end)
     if r.end == "trip":
@@ -74,5 +75,7 @@ def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_pa
         )
     elif r.balancing_ticks == 0:
         lines.append("  never balanced: the pendulum was not brought within the arming window (|θ| < arm_theta)")
+    if limits:
+        lines.append(f"  limits: {limits}")
     lines.append(f"  log: {log_path} ({r.ticks} ticks)" if log_path else "  log: none (use --log FILE.mcap)")
     return "\n".join(lines)

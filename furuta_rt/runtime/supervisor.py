@@ -24,6 +24,7 @@ from enum import IntEnum
 
 from firmware_protocol import FAULT_MASK, StatusFlags
 from furuta_rt.config import SafetyConfig
+from furuta_rt.runtime.records import STATE_NAMES
 
 
 class State(IntEnum):
@@ -37,8 +38,7 @@ class State(IntEnum):
         return self.name.lower()
 
 
-STATE_NAMES: tuple[str, ...] = tuple(s.label for s in State)
-"""Index → name, as logged in /furuta/tick ``state``."""
+assert tuple(s.label for s in State) == STATE_NAMES
 
 _FAULT_MASK = int(FAULT_MASK)
 _OVERRANGE_FAULTS = int(StatusFlags.ADC_OVERRANGE | StatusFlags.ENCODER_ERROR)

@@ -1,0 +1,390 @@
+"""The control loop (read → update → write) against an in-process simulated device: what it sends, what it
+logs, how it trips, and the timing helpers. The HIL tests (test_run_hil.py) run the real daemon."""
+
+from __future__ import annotations
+
+import math
+import os
+import queue
+import signal
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from firmware_protocol import COMMAND_FULL_SCALE, CommandFlags, Sample, StatusFlags, counts_to_actuator
+from furuta_rt.cli import main as cli_main
+from furuta_rt.config import RigConfig, load_rig
+from furuta_rt.control.controller import Controller, Measurement
+from furuta_rt.errors import UserError
+from furuta_rt.model.rig import RigModel
+from furuta_rt.runtime.hardware import HardwareInterface, SerialHardware, check_usb_latency
+from furuta_rt.runtime.loop import TICK_RECORD, ControlLoop, LoopResult, LoopSettings
+from furuta_rt.runtime.supervisor import STATE_NAMES, Supervisor, SupervisorLimits
+from furuta_rt.runtime.timing import DeviceClock, Histogram, RunningStats
+from furuta_rt.sim.simulator import Simulator
+
+F = {name: i for i, name in enumerate(TICK_RECORD)}
+ENABLE = int(CommandFlags.ENABLE)
+CLEAR = int(CommandFlags.CLEAR_FAULT)
+RATE = 500
+
+
+class SimDevice(HardwareInterface):
+    """The core Simulator behind the HardwareInterface, with the firmware's tick order: at tick k the
+    latest COMMAND received (answering k−1) sets the output, SAMPLE k is taken, the plant advances.
+    ``bursts[seq] = n`` delivers n samples at once (a host stall); ``silent_after`` ends the stream."""
+
+    def __init__(self, rig: RigConfig, *, x0: tuple[float, ...] = (0.05, 0.0, 0.0, 0.0), bursts: dict[int, int] | None = None,
+                 silent_after: int | None = None, status: dict[int, int] | None = None, on_read: Any = None) -> None:
+        self.sim = Simulator(RigModel.from_config(rig), rig.control.rate_hz, seed=1, x0=x0)  # type: ignore[arg-type]
+        self.full_scale = rig.actuator.limit
+        self.period_us = round(1e6 / rig.control.rate_hz)
+        self.bursts = bursts or {}
+        self.silent_after = silent_after
+        self.status = status or {}
+        self.on_read = on_read
+        self.seq = 0
+        self.cmd: tuple[int, int, int] | None = None
+        self.queue: deque[Sample] = deque()
+        self.journal: list[tuple] = []  # ("write", seq, counts, flags) | ("stop",) | what the sinks add
+
+    def handshake(self, rate_hz: int, watchdog_ms: int) -> Any:  # pragma: no cover - not used by the loop
+        raise NotImplementedError
+
+    def _tick(self) -> Sample:
+        cmd = self.cmd
+        u = counts_to_actuator(cmd[1], self.full_scale) if cmd is not None and cmd[2] & ENABLE else 0.0
+        raw = self.sim.sample()
+        s = Sample(self.seq, (self.seq * self.period_us) & 0xFFFFFFFF, raw.theta_adc, raw.theta_dot_adc, raw.phi_count,
+                   self.status.get(self.seq, 0))
+        self.sim.set_command(u)
+        self.sim.advance()
+        self.seq += 1
+        return s
+
+    def read(self, timeout: float) -> Sample | None:
+        if self.on_read is not None:
+            self.on_read(self)
+        if not self.queue:
+            if self.silent_after is not None and self.seq >= self.silent_after:
+                return None
+            for _ in range(self.bursts.get(self.seq, 1)):
+                self.queue.append(self._tick())
+            self.arrival_ns = time.perf_counter_ns()
+        return self.queue.popleft()
+
+    @property
+    def pending(self) -> int:
+        return len(self.queue)
+
+    def write(self, seq: int, counts: int, flags: int) -> None:
+        self.journal.append(("write", seq, counts, flags))
+        self.cmd = (seq, counts, flags)
+
+    def stop(self) -> None:
+        self.journal.append(("write", self.seq - 1, 0, 0))
+        self.journal.append(("stop",))
+
+    def close(self) -> None:
+        pass
+
+    @property
+    def writes(self) -> list[tuple]:
+        return [j for j in self.journal if j[0] == "write"]
+
+    @property
+    def ops(self) -> list[tuple]:
+        """What reached the device: writes and STOP, in order."""
+        return [j for j in self.journal if j[0] in ("write", "stop")]
+
+
+class JournalSink:
+    """Logger/dashboard queue stand-in that writes into the device's journal (to check the order of
+    commands and logging); ``full_every`` makes every n-th put raise queue.Full."""
+
+    def __init__(self, journal: list[tuple], full_every: int = 0) -> None:
+        self.journal = journal
+        self.full_every = full_every
+        self.puts = 0
+
+    def put_nowait(self, item: Any) -> None:
+        self.puts += 1
+        if self.full_every and self.puts % self.full_every == 0:
+            raise queue.Full
+        self.journal.append(("log", item))
+
+    def items(self) -> list[tuple]:
+        return [e[1] for e in self.journal if e[0] == "log"]
+
+    def ticks(self) -> list[tuple]:
+        return [rec for item in self.items() if item[0] == "ticks" for rec in item[1]]
+
+    def events(self) -> list[str]:
+        return [item[1][2] for item in self.items() if item[0] == "event"]
+
+
+def make_loop(rig: RigConfig, dev: SimDevice, *, duration: float | None = 2.0, gains: list[float] | None = None,
+              max_overruns: int = 5, full_every: int = 0,
+              controller: Controller | None = None) -> tuple[ControlLoop, JournalSink]:
+    limits = SupervisorLimits.from_config(rig.safety, RATE)
+    limits = SupervisorLimits(limits.theta_limit, limits.phi_limit, limits.arm_theta, max_overruns, limits.settle_ticks)
+    sink = JournalSink(dev.journal, full_every)
+    loop = ControlLoop(
+        dev, controller or Controller.from_rig(rig, gains=gains), Supervisor(limits),
+        LoopSettings(rate_hz=RATE, duration=duration, link_timeout_s=0.004),
+        full_scale=rig.actuator.limit, calibration=RigModel.from_config(rig).calibration, log=sink,
+        on_event=lambda level, msg: dev.journal.append(("print", level, msg)),
+    )
+    return loop, sink
+
+
+@pytest.fixture
+def rig() -> RigConfig:
+    return load_rig("thesis")
+
+
+def _col(ticks: list[tuple], name: str) -> np.ndarray:
+    return np.array([rec[F[name]] for rec in ticks])
+
+
+def test_balances_logs_every_tick_and_replays_bit_identically(rig: RigConfig) -> None:
+    dev = SimDevice(rig)
+    loop, sink = make_loop(rig, dev, duration=3.0)
+    r = loop.run()
+    ticks = sink.ticks()
+    assert r.end == "duration" and r.ticks == 3 * RATE == len(ticks)
+    assert _col(ticks, "seq").tolist() == list(range(3 * RATE)), "one record per device tick, in order"
+    states = [STATE_NAMES[s] for s in _col(ticks, "state")]
+    assert states[0] == "armed" and states[-1] == "balancing" and "tripped" not in states
+    assert _col(ticks, "reset").tolist() == [True] + [False] * (len(ticks) - 1), "reset once, at arming"
+    theta = _col(ticks, "theta")
+    assert np.abs(theta[-RATE:]).max() < 0.01, "balanced in the last second"
+    # commands: one per tick, ENABLE exactly while balancing, counts = the logged u
+    writes = dev.writes
+    assert [w[1] for w in writes[:-1]] == list(range(3 * RATE))
+    for rec, (_, _, counts, flags) in zip(ticks, writes, strict=False):
+        balancing = STATE_NAMES[rec[F["state"]]] == "balancing"
+        assert bool(flags & ENABLE) == balancing
+        expected = round(rec[F["u"]] / rig.actuator.limit * COMMAND_FULL_SCALE)
+        assert counts == (expected if balancing else 0) and (balancing or rec[F["u"]] == 0.0)
+    assert writes[-1][2:] == (0, 0) and dev.ops[-1] == ("stop",), "ends with u = 0, ENABLE clear, then STOP"
+    # the replay rule of furuta_rt.io.log_schema reproduces u and φ̂̇ bit for bit
+    ctrl = Controller.from_rig(rig)
+    for rec in ticks:
+        m = Measurement(rec[F["t"]], rec[F["theta"]], rec[F["theta_dot"]], rec[F["phi"]])
+        if rec[F["reset"]]:
+            ctrl.reset(m.phi)
+        if STATE_NAMES[rec[F["state"]]] == "balancing":
+            out = ctrl.update(m)
+            assert (out.u, out.u_lin, out.u_comp, out.phi_dot_hat) == (
+                rec[F["u"]], rec[F["u_lin"]], rec[F["u_comp"]], rec[F["phi_dot_hat"]])
+        else:
+            assert ctrl.hold(m) == rec[F["phi_dot_hat"]]
+    # accounting
+    assert r.balancing_ticks == states.count("balancing") and r.overruns == r.skipped_periods == r.seq_gaps == 0
+    assert r.theta.n == r.balancing_ticks - RATE and r.theta.std < 0.005
+    assert r.update_us.count == r.ticks and r.latency_us.count == r.ticks
+
+
+def test_theta_trip_writes_zero_before_logging_or_printing(rig: RigConfig) -> None:
+    """With zero gains the pendulum falls: |θ| > 0.5 rad trips; the zero command precedes the event."""
+    dev = SimDevice(rig)
+    loop, sink = make_loop(rig, dev, duration=10.0, gains=[0.0, 0.0, 0.0, 0.0])
+    r = loop.run()
+    assert r.end == "trip" and r.trip_reason == "theta_limit"
+    trip_seq = sink.ticks()[-1][F["seq"]]
+    j = dev.journal
+    i_zero = j.index(("write", trip_seq, 0, 0))
+    i_event = next(i for i, e in enumerate(j) if e[0] == "log" and e[1][0] == "event" and "→ tripped" in e[1][1][2])
+    i_print = next(i for i, e in enumerate(j) if e[0] == "print" and "→ tripped" in e[2])
+    assert i_zero < i_event and i_zero < i_print
+    last = sink.ticks()[-1]
+    assert STATE_NAMES[last[F["state"]]] == "tripped" and last[F["u"]] == 0.0 and abs(last[F["theta"]]) > 0.5
+    assert not [w for w in dev.writes if w[1] >= trip_seq and w[3] & ENABLE]
+    assert dev.ops[-1] == ("stop",)
+
+
+def test_link_loss_trips_with_zero(rig: RigConfig) -> None:
+    dev = SimDevice(rig, silent_after=400)
+    loop, sink = make_loop(rig, dev, duration=10.0)
+    r = loop.run()
+    assert r.end == "trip" and r.trip_reason == "link_loss" and r.ticks == 400
+    assert dev.writes[-2] == ("write", 399, 0, 0) and dev.ops[-1] == ("stop",)
+    assert any("link loss: no SAMPLE" in e for e in sink.events())
+
+
+def test_sigint_stops_with_zero_and_restores_the_handler(rig: RigConfig) -> None:
+    def interrupt(dev: SimDevice) -> None:
+        if dev.seq == 300 and not dev.queue:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    dev = SimDevice(rig, on_read=interrupt)
+    loop, sink = make_loop(rig, dev, duration=10.0)
+    r = loop.run()
+    assert r.end == "operator_stop" and r.trip_reason == "operator_stop"
+    assert dev.writes[-2][2:] == (0, 0) and dev.writes[-1][2:] == (0, 0)
+    assert any("operator stop (SIGINT)" in e for e in sink.events())
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_stale_samples_skip_whole_periods_without_commands(rig: RigConfig) -> None:
+    """A host stall delivers 4 samples at once: all four are ticks (logged, observer stepped), the three
+    stale ones get no COMMAND, and it counts as one overrun of 3 skipped periods."""
+    dev = SimDevice(rig, bursts={400: 4})
+    loop, sink = make_loop(rig, dev, duration=2.0)
+    r = loop.run()
+    assert r.end == "duration" and r.ticks == 2 * RATE and len(sink.ticks()) == r.ticks
+    answered = [w[1] for w in dev.writes[:-1]]
+    assert {400, 401, 402}.isdisjoint(answered) and 403 in answered
+    assert r.overruns == 1 and r.skipped_periods == 3
+    timing = {rec[F["seq"]]: rec for rec in sink.ticks()}
+    assert [timing[s][F["latency_us"]] for s in (400, 401, 402)] == [-1.0] * 3 and timing[403][F["latency_us"]] > 0
+    assert timing[403][F["overruns"]] == 1 and timing[399][F["overruns"]] == 0
+
+
+def test_repeated_overruns_trip(rig: RigConfig) -> None:
+    bursts = {400 + 3 * k: 3 for k in range(6)}  # a stall before each of six commanded ticks in a row
+    dev = SimDevice(rig, bursts=bursts)
+    loop, _ = make_loop(rig, dev, duration=3.0, max_overruns=5)
+    r = loop.run()
+    assert r.end == "trip" and r.trip_reason == "overruns" and r.overruns == 5
+    assert dev.writes[-2][2:] == (0, 0)
+
+
+def test_latched_device_fault_is_cleared_while_idle_before_arming(rig: RigConfig) -> None:
+    wd = int(StatusFlags.WATCHDOG_TRIPPED)
+    dev = SimDevice(rig, status={0: wd, 1: wd, 2: wd})
+    loop, sink = make_loop(rig, dev, duration=0.1)
+    loop.run()
+    states = [STATE_NAMES[s] for s in _col(sink.ticks(), "state")]
+    assert states[:4] == ["idle", "idle", "idle", "armed"]
+    assert [w[3] for w in dev.writes[:3]] == [CLEAR] * 3 and dev.writes[3][3] == 0
+
+
+def test_a_full_log_queue_drops_and_counts_never_blocks(rig: RigConfig) -> None:
+    dev = SimDevice(rig)
+    loop, sink = make_loop(rig, dev, duration=2.0, full_every=3)
+    r = loop.run()
+    assert r.end == "duration" and r.dropped_log_messages > 0
+    dropped_ticks, dropped_events = r.ticks - len(sink.ticks()), len(r.events) - len(sink.events())
+    assert dropped_ticks > 0 and dropped_ticks + dropped_events == r.dropped_log_messages
+    counter = _col(sink.ticks(), "dropped")  # cumulative as of each record: later drops are not in it
+    assert (np.diff(counter) >= 0).all() and 0 < counter[-1] <= r.dropped_log_messages
+
+
+def test_an_exception_in_the_update_sends_zero_and_propagates(rig: RigConfig) -> None:
+    class Broken(Controller):
+        def update(self, m: Measurement) -> Any:
+            if m.t > 0.5:
+                raise ZeroDivisionError("boom")
+            return super().update(m)
+
+    base = Controller.from_rig(rig)
+    ctrl = Broken(base.gains, base.observer, base.compensator, base.u_limit)
+    dev = SimDevice(rig)
+    loop, _ = make_loop(rig, dev, duration=2.0, controller=ctrl)
+    with pytest.raises(ZeroDivisionError):
+        loop.run()
+    assert dev.writes[-2][2:] == (0, 0) and dev.writes[-1][2:] == (0, 0) and dev.ops[-1] == ("stop",)
+    assert loop.result.end == "error" and loop.sup.reason == "error"
+
+
+# ------------------------------------------------------------------ timing helpers
+def test_device_clock_unwraps_and_maps_to_the_host() -> None:
+    clk = DeviceClock()
+    raw = [0xFFFF_FF00, 0xFFFF_FFF0, 0x10, 0x2000]
+    assert [clk.unwrap(t) for t in raw] == [0xFFFF_FF00, 0xFFFF_FFF0, 0x1_0000_0010, 0x1_0000_2000]
+    clk = DeviceClock(drift_ppm=0.0)
+    # host receive = device time + 1 ms transport, with jitter; the fastest sample sets the offset
+    assert clk.observe(0, 1_200_000) == 1_200_000
+    assert clk.observe(2000, 3_000_000) == 3_000_000
+    assert clk.observe(4000, 5_500_000) == 5_000_000
+
+
+def test_histogram_percentiles_and_running_stats() -> None:
+    h = Histogram(size=1000)
+    for v in range(1, 101):
+        h.add(v - 0.5)
+    h.add(5000.0)  # overflow: the max stays exact
+    assert h.percentile(0.5) == 51 and h.percentile(0.99) == 100 and h.max == 5000.0 and h.min == 0.5
+    assert math.isnan(Histogram().percentile(0.5))
+    rs = RunningStats()
+    data = np.random.default_rng(0).normal(1.0, 2.0, 1000)
+    for x in data:
+        rs.add(float(x))
+    assert rs.std == pytest.approx(float(np.std(data)), rel=1e-12) and rs.mean == pytest.approx(float(np.mean(data)))
+
+
+# ------------------------------------------------------------------ start-up checks
+def test_usb_latency_timer_above_1ms_is_reported_with_the_fix(tmp_path: Path) -> None:
+    sysfs = tmp_path / "usb-serial"
+    (sysfs / "ttyUSB3").mkdir(parents=True)
+    (sysfs / "ttyUSB3" / "latency_timer").write_text("16\n")
+    dev = tmp_path / "ttyUSB3"
+    dev.write_text("")
+    link = tmp_path / "usb-FTDI_FT232R-if00-port0"
+    link.symlink_to(dev)
+    msg = check_usb_latency(str(link), None, sysfs=str(sysfs))
+    assert msg is not None and "16 ms" in msg and f"echo 1 | sudo tee {sysfs}/ttyUSB3/latency_timer" in msg
+    (sysfs / "ttyUSB3" / "latency_timer").write_text("1\n")
+    assert check_usb_latency(str(link), None, sysfs=str(sysfs)) is None
+    assert check_usb_latency("/dev/ttyACM0", None, sysfs=str(sysfs)) is None
+
+
+def test_missing_device_is_a_one_line_user_error() -> None:
+    with pytest.raises(UserError, match=r"does not exist.*--mock"):
+        SerialHardware("/dev/furuta-no-such-device").open()
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        ([], "--port DEV"),
+        (["--mock", "--duration", "-1"], "--duration"),
+        (["--port", "/dev/null", "--mock-effect", "arm_coulomb.Fc=0.3"], "only apply with --mock"),
+        (["--mock", "--rate", "0"], "--rate"),
+        (["--port", "/dev/furuta-no-such-device", "--duration", "1"], "does not exist"),
+        (["--mock", "--config", "/nonexistent.toml"], "does not exist"),
+    ],
+)
+def test_cli_user_errors_exit_2_with_one_line(args: list[str], needle: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli_main(["run", "--no-tui", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("furuta-rt run: error:") and needle in err[0], err
+
+
+def test_loop_result_rates() -> None:
+    r = LoopResult(ticks=501, host_span_s=1.0, device_span_s=1.0)
+    assert r.rate_hz == 500.0 and r.device_rate_hz == 500.0
+    assert math.isnan(LoopResult().rate_hz)
+
+
+def test_dashboard_snapshots_at_most_10_hz_and_render(rig: RigConfig) -> None:
+    from rich.console import Console
+
+    from furuta_rt.runtime.dashboard import render
+
+    dev = SimDevice(rig)
+    snaps: list[dict] = []
+
+    class Snaps:
+        def put_nowait(self, item: dict) -> None:
+            snaps.append(item)
+
+    loop, _ = make_loop(rig, dev, duration=2.0)
+    loop.dashboard = Snaps()
+    loop.run()
+    assert len(snaps) == 2 * RATE // loop.settings.snapshot_ticks == 20, "10 per second of device time"
+    last = snaps[-1]
+    assert last["state"] == "balancing" and last["ticks"] == 2 * RATE and last["mode"] == "none"
+    console = Console(record=True, width=120)
+    console.print(render(last))
+    text = console.export_text()
+    for needle in ("BALANCING", "loop rate", "jitter max", "overruns", "compensation", "gaps / CRC"):
+        assert needle in text, text
+    console.print(render(None))
+    assert "waiting for the device" in console.export_text()
