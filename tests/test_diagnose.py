@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 
 import numpy as np
 import pytest
@@ -162,3 +163,45 @@ def test_too_short_recording_is_refused(rig) -> None:
     rec = Recording(t=t, theta=np.zeros(300), phi=np.zeros(300), u=np.zeros(300))
     with pytest.raises(UserError, match="needs at least"):
         diagnose(rec, rig, FAST)
+
+
+def test_free_decay_tells_viscous_and_coulomb_pivot_friction_apart() -> None:
+    """A simulated free swing with both kinds of pivot friction: the energy lost per cycle needs both, and the
+    fitted values come back (eq. 1 and viscous laws of furuta_rt.model.friction)."""
+    from furuta_rt.diagnose.decay import free_decay, is_free_decay
+    from furuta_rt.model.effects import effects_from_assignments
+    from furuta_rt.model.rig import RigModel
+    from furuta_rt.sim.simulator import Simulator
+
+    rig = load_rig("thesis")
+    rig = quiet(rig).model_copy(update={"sensors": quiet(rig).sensors.model_copy(update={"bessel_cutoff": None})})
+    eff = effects_from_assignments(["pendulum_viscous.bp=2e-4", "pendulum_coulomb.Fc=3e-4", "arm_coulomb.Fc=0.5"])
+    sim = Simulator(RigModel.from_config(rig, eff), 500.0, 5000.0, x0=(math.pi - 1.5, 0.0, 0.0, 0.0))
+    n = 25 * 500
+    cols = np.empty((n, 3))
+    lsb = 2 * math.pi / 8192  # an encoder on the pendulum (the ADC path of the thesis rig ends at ±π)
+    for k in range(n):
+        cols[k] = (sim.t, round(sim.theta / lsb) * lsb, sim.measure().phi)
+        sim.advance()
+    rec = Recording(t=cols[:, 0], theta=cols[:, 1], phi=cols[:, 2], u=np.zeros(n))
+    prep = prepare(rec, rig)
+    assert is_free_decay(prep)
+    r = free_decay(prep, rig)
+    assert r is not None and r.best == "both"
+    assert r.fits["both"].bp == pytest.approx(2e-4, rel=0.15)
+    assert r.fits["both"].Fc == pytest.approx(3e-4, rel=0.15)
+    assert r.fits["both"].loo_rms < 0.5 * min(r.fits["viscous"].loo_rms, r.fits["coulomb"].loo_rms)
+    d = diagnose(rec, rig, FAST)
+    assert {"pendulum_viscous", "pendulum_coulomb"} <= set(d.names)
+    assert not any(set(a["effects"]) == {"pendulum_viscous", "pendulum_coulomb"} for a in d.ambiguities)
+
+
+def test_theta_filter_option() -> None:
+    from furuta_rt.cli.diagnose import with_theta_filter
+    from furuta_rt.errors import UserError
+
+    rig = load_rig("thesis")
+    assert with_theta_filter(rig, "none").sensors.bessel_cutoff is None
+    assert with_theta_filter(rig, "80").sensors.bessel_cutoff == 80.0
+    with pytest.raises(UserError, match="theta-filter"):
+        with_theta_filter(rig, "fast")

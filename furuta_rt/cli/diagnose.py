@@ -29,6 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="column mapping for another rig's CSV (e.g. macstepien; see furuta_rt/io/mappings)")
     p.add_argument("--json", metavar="OUT.json", default=None, help="write the diagnosis as one JSON object ('-': stdout)")
     p.add_argument("--report", metavar="OUT_DIR", default=None, help="write figures and summary.md into this directory")
+    p.add_argument("--theta-filter", metavar="none|RAD_S", default=None,
+                   help="the θ channel's Bessel cutoff instead of the config's; 'none' for an encoder on the pendulum")
     p.add_argument("--no-closed-loop", action="store_true", help="skip the closed-loop re-simulation (faster)")
     p.set_defaults(func=run)
 
@@ -61,11 +63,27 @@ def load(path: str, config: str | None, mapping: str | None) -> tuple[Recording,
     return rec, rig or load_rig("thesis")
 
 
+def with_theta_filter(rig: RigConfig, text: str) -> RigConfig:
+    """The rig with another θ measurement path: 'none' (θ measured directly) or a Bessel cutoff in rad/s."""
+    if text.strip().lower() == "none":
+        cutoff = None
+    else:
+        try:
+            cutoff = float(text)
+        except ValueError:
+            raise UserError(f"--theta-filter {text!r}: give 'none' or a cutoff in rad/s (e.g. 50)") from None
+        if not cutoff > 0:
+            raise UserError(f"--theta-filter {text!r}: the cutoff must be > 0 rad/s")
+    return rig.model_copy(update={"sensors": rig.sensors.model_copy(update={"bessel_cutoff": cutoff})})
+
+
 def run(args: argparse.Namespace) -> int:
     from furuta_rt.diagnose import Options, diagnose
     from furuta_rt.diagnose.report import text, write_report
 
     rec, rig = load(args.recording, args.config, args.mapping)
+    if args.theta_filter is not None:
+        rig = with_theta_filter(rig, args.theta_filter)
     d = diagnose(rec, rig, Options(closed_loop=not args.no_closed_loop))
     out = d.to_json()
     if args.json == "-":

@@ -23,10 +23,11 @@ import numpy as np
 
 from furuta_rt.config import RigConfig
 from furuta_rt.diagnose import verify
+from furuta_rt.diagnose.decay import DecayFit, DecayResult, free_decay, is_free_decay
 from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, Context
 from furuta_rt.diagnose.locate import Location, describe, locate
 from furuta_rt.diagnose.select import EquationModel, Evaluation, Spec, Thresholds
-from furuta_rt.diagnose.signals import prepare
+from furuta_rt.diagnose.signals import GaussianFilter, Prepared, prepare
 from furuta_rt.model.effects import Effects
 from furuta_rt.recording import Recording
 
@@ -51,8 +52,8 @@ EXPERIMENTS: dict[frozenset[str], str] = {
 
 @dataclass(frozen=True)
 class Options:
-    sigma_arm: float = 0.03  # s, Gaussian width for the arm equation
-    sigma_pend: float = 0.03  # s, for the pendulum equation
+    sigma_arm: float | None = None  # s, Gaussian width for the arm equation (None: the encoder decides)
+    sigma_pend: float = 0.05  # s, for the pendulum equation (its noise is the encoder's, through γ·φ̈)
     sigma_fine: float = 0.005  # s, for nonlinear regressors (signs) and initial states
     thresholds: Thresholds = field(default_factory=Thresholds)
     horizon: float = 0.3  # s, prediction window
@@ -60,7 +61,8 @@ class Options:
     max_windows: int = 40
     closed_loop: bool = True
     substep_hz: float = 2000.0  # physics substeps of the verification simulations
-    ambiguity_t: float = 3.0  # paired t on the blocks above which two look-alikes are told apart
+    ambiguity_t: float = 3.0  # paired t on the blocks above which two look-alikes are told apart ...
+    ambiguity_gain: float = 0.01  # ... when one also fits better by at least this (relative held-out error)
     seed: int = 0
 
 
@@ -72,6 +74,7 @@ class Found:
     se: dict[str, float]
     t: float
     cv_gain: float  # held-out error reduction this effect brings (relative, given the others)
+    source: str = "inverse dynamics"  # or "free decay" (energy lost per swing)
 
     def as_json(self) -> dict:
         return {"name": self.name, "params": self.params}
@@ -105,6 +108,8 @@ class Diagnosis:
     rig: str
     context: Context = field(repr=False)
     models: dict[str, EquationModel] = field(default_factory=dict, repr=False)
+    decay: dict | None = None  # the free-decay analysis, when the recording is one
+    decay_result: DecayResult | None = field(default=None, repr=False)
     prediction: dict = field(default_factory=dict, repr=False)  # starts, horizon, train effects (for figures)
 
     @property
@@ -115,6 +120,10 @@ class Diagnosis:
         return effects_of(self.effects)
 
     def to_json(self) -> dict:
+        """One JSON-ready object (non-finite numbers become null)."""
+        return plain(self._json())
+
+    def _json(self) -> dict:
         return {
             "effects": [e.as_json() for e in self.effects],
             "fit": {k: self.fit[k] for k in ("metric", "nominal", "augmented")},
@@ -122,8 +131,10 @@ class Diagnosis:
             "ambiguities": self.ambiguities,
             "lookalikes": self.lookalikes,
             "evidence": [
-                {"name": e.name, "equation": e.equation, "cv_gain": e.cv_gain, "t": e.t, "se": e.se} for e in self.effects
+                {"name": e.name, "equation": e.equation, "source": e.source, "cv_gain": e.cv_gain, "t": e.t, "se": e.se}
+                for e in self.effects
             ],
+            "free_decay": self.decay,
             "fit_details": {k: v for k, v in self.fit.items() if k not in ("metric", "nominal", "augmented")},
             "closed_loop": self.closed_loop,
             "equations": {
@@ -138,6 +149,21 @@ class Diagnosis:
             "rig": self.rig,
             "seconds": self.seconds,
         }
+
+
+def plain(x: object) -> object:
+    """Python floats/ints/lists/dicts only, with NaN and ±inf as None (strict JSON)."""
+    if isinstance(x, dict):
+        return {str(k): plain(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [plain(v) for v in x]
+    if isinstance(x, bool | str) or x is None:
+        return x
+    if isinstance(x, int | np.integer):
+        return int(x)
+    if isinstance(x, float | np.floating):
+        return float(x) if np.isfinite(x) else None
+    return x
 
 
 def effects_of(found: list[Found]) -> Effects:
@@ -182,14 +208,17 @@ def check_lookalikes(
             if other in selected or any(set(a["effects"]) == pair for a in ambiguous + apart):
                 continue
             experiment = EXPERIMENTS.get(pair, "")
-            if CANDIDATES[other].equation != eq:  # the two act in different equations of eq. 4
-                em_o = ems[CANDIDATES[other].equation]
-                ev_o = em_o.evaluate_with(res[CANDIDATES[other].equation].selected.spec, other)
-                gain_o = (res[CANDIDATES[other].equation].selected.cv - ev_o.cv) / res[CANDIDATES[other].equation].selected.cv
+            other_eq = CANDIDATES[other].equation
+            if other_eq != eq:  # the two act in different equations of eq. 4
+                em_o, sel_o = ems[other_eq], res[other_eq].selected
+                if em_o.n_rows < 20 * opts.thresholds.n_blocks or not sel_o.cv:
+                    why = f"{other} would act in the {other_eq} equation, which has too few usable samples to test it"
+                else:
+                    gain_o = (sel_o.cv - em_o.evaluate_with(sel_o.spec, other).cv) / sel_o.cv
+                    why = f"{other} would act in the {other_eq} equation and improves it by {100 * max(gain_o, 0):.2f} % only"
                 apart.append({
                     "effects": [name, other], "reported": name,
-                    "reason": f"{name} acts in the {eq} equation, where the mismatch is; {other} would act in the "
-                              f"{CANDIDATES[other].equation} equation and improves it by {100 * max(gain_o, 0):.2f} % only",
+                    "reason": f"{name} acts in the {eq} equation, where the mismatch is; {why}",
                     "experiment": experiment,
                 })
                 continue
@@ -197,10 +226,12 @@ def check_lookalikes(
             t = _paired_t(alt.fit.cv_block, r.selected.fit.cv_block)
             plausible = CANDIDATES[other].plausible(alt.params[other], ems[eq].ctx.rig)
             rel = (alt.cv - r.selected.cv) / r.selected.cv
-            if plausible and t < opts.ambiguity_t and alt.t_stat.get(other, 0.0) >= opts.thresholds.t_min:
+            close = t < opts.ambiguity_t or rel < opts.ambiguity_gain
+            if plausible and close and alt.t_stat.get(other, 0.0) >= opts.thresholds.t_min:
                 ambiguous.append({
                     "effects": [name, other], "reported": name,
                     "alternative": {"name": other, "params": alt.params[other]},
+                    "alternative_model": alt.params,  # the whole equation's effects under the alternative
                     "cv_difference": rel, "paired_t": t,
                     "reason": f"the data fits {other} almost as well ({100 * rel:+.2f} % held-out error, paired t = {t:.1f})",
                     "experiment": experiment,
@@ -225,12 +256,32 @@ def _windows(prep, start_frac: float, horizon: int, max_windows: int) -> list[in
     return verify.window_starts(prep, a, v[-1], horizon, spacing)
 
 
+ARM_SIGMAS = (0.03, 0.04, 0.05)
+MAX_QUANTISATION_RATIO = 0.02
+
+
+def arm_sigma(prep: Prepared) -> float:
+    """The narrowest kernel that holds the encoder's quantisation noise in φ̈ below 2 % of the φ̈ signal.
+
+    The arm residual's noise is that quantisation error times the inertia; it also leaks into the command
+    (u feeds back φ), so where it is large it biases the input-side parameters (delay, gain). Wider
+    kernels cut it as σ^−2.5 but blur the reversals, so the narrowest adequate one is used."""
+    for sigma in ARM_SIGMAS:
+        f = GaussianFilter.build(sigma, prep.dt)
+        noise = prep.phi_lsb / np.sqrt(12.0) * float(np.linalg.norm(f.kernels[2]))
+        signal = float(np.std(f.apply(prep.phi, 2)[prep.valid]))
+        if signal > 0 and noise / signal <= MAX_QUANTISATION_RATIO:
+            return sigma
+    return ARM_SIGMAS[-1]
+
+
 def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> Diagnosis:
     """Diagnose ``rec`` against ``rig`` (see the module docstring)."""
     opts = options or Options()
     t0 = time.perf_counter()
     prep = prepare(rec, rig)
-    ctx = Context.build(prep, rig, opts.sigma_arm, opts.sigma_pend, opts.sigma_fine)
+    sigma_arm = opts.sigma_arm or arm_sigma(prep)
+    ctx = Context.build(prep, rig, sigma_arm, opts.sigma_pend, opts.sigma_fine)
     notes: list[str] = []
     ems: dict[str, EquationModel] = {}
     res: dict[str, EquationResult] = {}
@@ -256,23 +307,59 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
             gain = (without.cv - ev.cv) / without.cv if without.cv else 0.0
             found.append(Found(name, eq, ev.params[name], ev.se.get(name, {}), float(ev.t_stat.get(name, 0.0)), gain))
     ambiguities, lookalikes = check_lookalikes(ems, res, opts)
+    decay = free_decay(prep, rig) if is_free_decay(prep) else None
+    if decay is not None:
+        found, ambiguities = _use_decay(decay, found, ambiguities, lookalikes)
     try:
         effects_of(found)
     except ValueError as err:  # e.g. a combination the effects vocabulary forbids
         notes.append(f"the found effects are not a consistent set ({err}); reported as found, not simulated")
     located = "; ".join(describe(r.location, list(r.selected.spec.effects)) for r in res.values())
     prediction: dict = {}
-    fit_summary = _prediction_metric(ctx, ems, res, rig, opts, notes, prediction)
+    fit_summary = _prediction_metric(ctx, ems, res, rig, opts, notes, prediction, decay is not None)
     closed = _closed_loop(rec, rig, found, opts, notes) if opts.closed_loop else None
     return Diagnosis(
         effects=found, fit=fit_summary, located=located, ambiguities=ambiguities, lookalikes=lookalikes,
         equations=res, closed_loop=closed, notes=notes, seconds=time.perf_counter() - t0, rig=rig.name, context=ctx,
-        models=ems, prediction=prediction,
+        models=ems, prediction=prediction, decay=decay.as_json() if decay is not None else None, decay_result=decay,
     )
 
 
+PENDULUM_FRICTION = ("pendulum_viscous", "pendulum_coulomb")
+
+
+def _decay_effects(fit: DecayFit) -> list[Found]:
+    out = []
+    if fit.bp > 0:
+        out.append(Found("pendulum_viscous", PEND, {"bp": fit.bp}, {"bp": fit.se_bp}, fit.bp / (fit.se_bp or 1.0), 0.0,
+                         "free decay"))
+    if fit.Fc > 0:
+        out.append(Found("pendulum_coulomb", PEND, {"Fc": fit.Fc}, {"Fc": fit.se_Fc}, fit.Fc / (fit.se_Fc or 1.0), 0.0,
+                         "free decay"))
+    return out
+
+
+def _use_decay(
+    decay: DecayResult, found: list[Found], ambiguities: list[dict], lookalikes: list[dict]
+) -> tuple[list[Found], list[dict]]:
+    """A free decay is the experiment that tells viscous from Coulomb pivot friction: its energy-per-cycle
+    fit replaces the pendulum friction of the inverse-dynamics selection and settles their ambiguity."""
+    f = {k: v.loo_rms for k, v in decay.fits.items()}
+    pend = _decay_effects(decay.fits[decay.best])
+    found = [e for e in found if e.name not in PENDULUM_FRICTION] + pend
+    ambiguities = [a for a in ambiguities if not set(a["effects"]) <= set(PENDULUM_FRICTION)]
+    lookalikes.append({
+        "effects": list(PENDULUM_FRICTION), "reported": ", ".join(e.name for e in pend) or "none",
+        "reason": f"the recording is a free decay of {decay.cycles} cycles: the energy lost per cycle is predicted within "
+                  f"{100 * f['both']:.0f} % by viscous + Coulomb, {100 * f['viscous']:.0f} % by viscous alone, "
+                  f"{100 * f['coulomb']:.0f} % by Coulomb alone (leave-one-cycle-out)",
+        "experiment": EXPERIMENTS[frozenset(PENDULUM_FRICTION)],
+    })
+    return found, ambiguities
+
+
 def _prediction_metric(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResult], rig: RigConfig,
-                       opts: Options, notes: list[str], keep: dict) -> dict:
+                       opts: Options, notes: list[str], keep: dict, decay: bool = False) -> dict:
     prep = ctx.prep
     horizon = max(5, round(opts.horizon / prep.dt))
     starts = _windows(prep, opts.holdout, horizon, opts.max_windows)
@@ -289,6 +376,10 @@ def _prediction_metric(ctx: Context, ems: dict[str, EquationModel], res: dict[st
             notes.append(f"{eq} equation: too little data before the held-out part; the prediction uses all-data parameters")
         ev = refit(train, r.selected.spec)
         train_found += [Found(n, eq, ev.params[n], {}, 0.0, 0.0) for n in ev.spec.effects]
+    if decay:  # the pivot friction from the cycles before the held-out part
+        part = free_decay(prep, rig, stop_time=float(split_t))
+        if part is not None:
+            train_found = [e for e in train_found if e.name not in PENDULUM_FRICTION] + _decay_effects(part.fits[part.best])
     try:
         augmented = effects_of(train_found)
     except ValueError:

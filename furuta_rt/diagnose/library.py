@@ -156,15 +156,47 @@ class Context:
     @cached_property
     def arm_still(self) -> np.ndarray:
         """Samples in runs of ≥ STILL_TICKS ticks with the same encoder count: the arm is stuck, or moves
-        too slowly for the encoder to resolve its acceleration."""
+        too slowly for the encoder to resolve its acceleration. Runs at rest with nothing pushing the arm
+        (no command, the pendulum still: before a step, say) are not counted: eq. 4 holds there as 0 = 0."""
         cnt = np.round(self.prep.phi / self.prep.phi_lsb).astype(np.int64)
         start = np.flatnonzero(np.concatenate([[True], np.diff(cnt) != 0]))
         runs = np.diff(np.concatenate([start, [len(cnt)]]))
-        return np.repeat(runs, runs) >= STILL_TICKS
+        still = np.repeat(runs, runs) >= STILL_TICKS
+        run_id = np.repeat(np.arange(len(runs)), runs)
+        pushed = (self.prep.u != 0) | (np.abs(self.arm.theta_dot) > QUIET_THETA_DOT)
+        pushed_run = np.bincount(run_id, weights=pushed.astype(float), minlength=len(runs)) > 0
+        return still & pushed_run[run_id]
+
+    @cached_property
+    def arm_direction(self) -> np.ndarray:
+        """Direction of the arm's motion (±1) from the encoder counts: the sign of the last count change;
+        inside a run of equal counts entered and left through the same edge (a reversal within one count)
+        the switch is put at the run's middle, where a turning point is, by symmetry."""
+        cnt = np.round(self.prep.phi / self.prep.phi_lsb).astype(np.int64)
+        d = np.diff(cnt)
+        idx = np.flatnonzero(d)
+        out = np.sign(self.fine.phi_dot)
+        if len(idx) < 2:
+            return out
+        step = np.sign(d[idx])  # direction of each count change (between samples idx and idx+1)
+        out[: idx[0] + 1] = step[0]
+        for j in range(len(idx) - 1):
+            a, b = idx[j] + 1, idx[j + 1] + 1  # run of equal counts: samples a … b−1
+            if step[j] == step[j + 1]:
+                out[a:b] = step[j]
+            else:
+                mid = (a + b) // 2
+                out[a:mid] = step[j]
+                out[mid:b] = step[j + 1]
+        out[idx[-1] + 1 :] = step[-1]
+        return out
 
     @cached_property
     def arm_rows(self) -> np.ndarray:
-        """Rows of the arm equation whose filter window sees the arm sliding (no still run inside)."""
+        """Rows of the arm equation whose filter window sees the arm sliding (no still run inside); none when
+        the arm hardly moves at all (less than MIN_ARM_TRAVEL encoder counts end to end)."""
+        if not self.prep.moves(self.prep.phi):
+            return np.zeros(self.prep.n, dtype=bool)
         h = self.arm.filt.half + 2
         near = np.convolve(self.arm_still.astype(float), np.ones(2 * h + 1), mode="same") > 0
         return self.prep.valid & ~near
@@ -175,6 +207,7 @@ class Context:
 
 
 STILL_TICKS = 10
+QUIET_THETA_DOT = 0.05  # rad/s: a pendulum slower than this hardly pushes the arm
 
 
 @dataclass(frozen=True)
@@ -201,7 +234,7 @@ class Candidate:
         a, p, f = ctx.arm, ctx.pend, ctx.fine
         match self.name:
             case "arm_coulomb":
-                return a.smooth(law_on_array(Coulomb(1.0).torque, f.phi_dot))[:, None]
+                return a.smooth(law_on_array(Coulomb(1.0).torque, ctx.arm_direction))[:, None]
             case "arm_viscous":
                 return Viscous(1.0).torque(a.phi_dot)[:, None]
             case "arm_spring":
@@ -255,7 +288,7 @@ class Candidate:
             case "arm_inertia":
                 return par["J"] > 0.05 * rig.plant.arm_inertia
             case "input_gain":
-                return 0.2 < par["gain"] < 5.0
+                return 0.05 < par["gain"] < 20.0
             case "input_delay":
                 return par["delay"] > 0
             case "theta_offset":

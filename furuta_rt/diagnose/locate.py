@@ -60,15 +60,19 @@ def features(ctx: Context, equation: str) -> dict[str, np.ndarray]:
 
 def locate(ctx: Context, equation: str, y: np.ndarray, rows: np.ndarray) -> Location:
     """Describe the nominal residual ``y`` of ``equation`` on ``rows``."""
+    if rows.sum() < 50:
+        return Location(equation, float("nan"), {}, {}, [], text="too few usable samples")
     s = ctx.states(equation)
     f = ctx.fine
     r = y[rows]
     feats = features(ctx, equation)
     command = feats["u"]
+    # the equation's torque scale: the command torque (arm), the gravity torque (pendulum), rms
     if equation == ARM:
-        scale = float(np.std(command[rows])) or 1.0
+        scale = float(np.sqrt(np.mean(command[rows] ** 2)))
     else:
-        scale = float(np.std((ctx.plant.p.epsilon * np.sin(s.theta))[rows])) or 1.0
+        scale = float(np.sqrt(np.mean((ctx.plant.p.epsilon * np.sin(s.theta))[rows] ** 2)))
+    scale = scale or 1.0
     corr = {k: (_corr(r, v[rows]) if k != "1" else float(np.mean(r) / (np.sqrt(np.mean(r**2)) or 1.0))) for k, v in feats.items()}
     rms = float(np.sqrt(np.mean(r**2)))
     regions = {}
@@ -99,6 +103,8 @@ def locate(ctx: Context, equation: str, y: np.ndarray, rows: np.ndarray) -> Loca
 def describe(loc: Location, selected: list[str]) -> str:
     """One sentence for one equation."""
     eq = "arm equation" if loc.equation == ARM else "pendulum equation"
+    if loc.text:
+        return f"{eq}: {loc.text}"
     if not selected:
         return f"{eq}: consistent with the nominal model (residual {100 * loc.relative_rms:.1f} % of its torque scale)"
     top = sorted(((k, v) for k, v in loc.correlations.items() if k != "1"), key=lambda kv: -abs(kv[1]))[:2]

@@ -16,6 +16,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from furuta_rt.diagnose.decay import DecayResult
 from furuta_rt.diagnose.engine import Diagnosis
 from furuta_rt.diagnose.locate import features
 from furuta_rt.diagnose.verify import quiet, simulate_window
@@ -41,9 +42,9 @@ def text(d: Diagnosis) -> list[str]:
     if d.effects:
         lines.append("effects found (held-out error reduction, significance):")
         for e in d.effects:
-            lines.append(
-                f"  {e.name}: {fmt_params(e.params, e.se)}   [{e.equation} equation, −{100 * e.cv_gain:.1f} %, t = {e.t:.0f}]"
-            )
+            how = (f"{e.equation} equation, −{100 * e.cv_gain:.1f} %, t = {e.t:.0f}" if e.source == "inverse dynamics"
+                   else f"{e.equation} equation, from the {e.source}")
+            lines.append(f"  {e.name}: {fmt_params(e.params, e.se)}   [{how}]")
     else:
         lines.append("no effect found: the nominal model explains the recording")
     for a in d.ambiguities:
@@ -131,7 +132,31 @@ def figures(d: Diagnosis, out: Path, prefix: str = "") -> list[Path]:
         title = f"held-out prediction NRMSE: nominal {d.fit['nominal']:.3f}, augmented {d.fit['augmented']:.3f}"
         ax[0, 0].set_title(title, fontsize=8)
         paths.append(_save(fig, out / f"{prefix}prediction.png"))
+    if d.decay_result is not None:
+        paths.append(decay_figure(d.decay_result, out / f"{prefix}decay.png"))
     return paths
+
+
+def decay_figure(r: DecayResult, path: Path) -> Path:
+    """Free decay: swing amplitude over time, and the energy lost per cycle against its amplitude with the
+    viscous, Coulomb and combined fits."""
+    fig, ax = _figure(1, 2, (9, 3.4))
+    a = ax[0, 0]
+    a.semilogy(r.peaks_t, r.peaks, ".", ms=3, color="k")
+    a.set_xlabel("t (s)")
+    a.set_ylabel("|θ − π| at turning points (rad)")
+    a.set_title("amplitude (exponential = straight line here)", fontsize=8)
+    a = ax[0, 1]
+    a.loglog(r.amplitude, r.loss, "ko", ms=3, label="data")
+    for name, style in (("viscous", "C0--"), ("coulomb", "C3:"), ("both", "C2-")):
+        f = r.fits[name]
+        label = {"viscous": f"viscous bp = {f.bp:.3g}", "coulomb": f"Coulomb Fc = {f.Fc:.3g}",
+                 "both": f"both: bp = {f.bp:.3g}, Fc = {f.Fc:.3g}"}[name]
+        a.loglog(r.amplitude, r.predicted_loss(name), style, label=f"{label} (LOO {100 * f.loo_rms:.0f} %)")
+    a.set_xlabel("amplitude at the cycle's start (rad)")
+    a.set_ylabel("energy lost per cycle (J)")
+    a.legend(fontsize=7)
+    return _save(fig, path)
 
 
 def write_report(d: Diagnosis, out: Path) -> list[Path]:

@@ -7,7 +7,9 @@ K-fold) squared error most is kept if
 
 * the held-out error drops by at least ``min_gain`` (relative), and by more than the BIC penalty of
   its parameters on the effective number of samples,
-* its main parameter is significant (|value| ≥ ``t_min`` jackknife standard errors), and
+* its main parameter is significant (|value| ≥ ``t_min`` jackknife standard errors, or ≥ ``t_strong`` when
+  the held-out gain is large, ≥ ``strong_gain``: the fold-wise optima of a nonlinear parameter scatter
+  more than its error), and
 * the parameters are physically admissible (friction opposes motion, springs restore, ...).
 
 A backward pass then drops any effect whose removal costs less than ``min_gain``.
@@ -63,8 +65,10 @@ class Evaluation:
 
 @dataclass(frozen=True)
 class Thresholds:
-    min_gain: float = 0.01
+    min_gain: float = 0.003
     t_min: float = 4.0
+    strong_gain: float = 0.05  # a held-out gain this large is evidence enough with t ≥ t_strong
+    t_strong: float = 2.0
     n_blocks: int = 10
 
 
@@ -84,7 +88,12 @@ class EquationModel:
 
     @property
     def candidates(self) -> list[Candidate]:
-        return [c for c in CANDIDATES.values() if c.equation == self.equation]
+        """This equation's candidates (the command path's only when there is a command)."""
+        commanded = bool(np.any(self.ctx.prep.u[self.ctx.prep.valid] != 0))
+        return [
+            c for c in CANDIDATES.values()
+            if c.equation == self.equation and (commanded or not c.name.startswith("input_"))
+        ]
 
     def target(self, spec: Spec) -> np.ndarray:
         return self.ctx.arm_residual(spec.path, spec.d_inertia) if self.equation == ARM else self.ctx.pend_id
@@ -129,7 +138,7 @@ class EquationModel:
             spread = float(np.sqrt((B - 1) / B * np.sum((nl_folds - nl_folds.mean()) ** 2)))
             err = max(spread, 0.5 * nl_step)
             # significance of the departure from nominal (ΔJ, delay, width); a limit is judged by CV alone
-            tstat[nl_name] = np.inf if nl_name == "input_saturation" else abs(nl_value) / err
+            tstat[nl_name] = np.inf if nl_name == "input_saturation" else abs(nl_value) / max(err, 1e-300)
             se[nl_name] = {next(iter(params[nl_name])): err}
         return Evaluation(spec, f, params, tstat, se)
 
@@ -188,8 +197,10 @@ class EquationModel:
         n_eff = max(self.n_rows / self.corr_len, 10.0)
         return k_added * np.log(n_eff) * sse / n_eff
 
-    def admissible(self, ev: Evaluation, name: str) -> bool:
-        return CANDIDATES[name].plausible(ev.params[name], self.ctx.rig) and ev.t_stat.get(name, 0.0) >= self.th.t_min
+    def admissible(self, ev: Evaluation, name: str, gain: float = 0.0) -> bool:
+        t = ev.t_stat.get(name, 0.0)
+        significant = t >= self.th.t_min or (gain >= self.th.strong_gain and t >= self.th.t_strong)
+        return CANDIDATES[name].plausible(ev.params[name], self.ctx.rig) and significant
 
     def select(self, allowed: set[str] | None = None) -> tuple[Evaluation, Evaluation, list[dict]]:
         """(nominal evaluation, selected evaluation, trace of the steps)."""
@@ -210,7 +221,7 @@ class EquationModel:
                 ok = (
                     gain >= self.th.min_gain
                     and current.cv - ev.cv > self.bic_penalty(k, ev.cv)
-                    and self.admissible(ev, name)
+                    and self.admissible(ev, name, gain)
                 )
                 trace.append({"step": len(current.spec.effects), "candidate": name, "cv_gain": gain,
                               "t": ev.t_stat.get(name, 0.0), "params": ev.params[name], "accepted": False, "ok": ok})

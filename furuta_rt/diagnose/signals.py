@@ -148,6 +148,10 @@ class Prepared:
     def n(self) -> int:
         return len(self.t)
 
+    def moves(self, x: np.ndarray) -> bool:
+        """Whether an angle travels at least MIN_TRAVEL_COUNTS encoder counts over the recording."""
+        return float(np.ptp(x[self.valid])) >= MIN_TRAVEL_COUNTS * self.phi_lsb
+
     def states(self, sigma: float) -> States:
         """θ, φ and derivatives seen through G_σ, θ reconstructed through the inverse Bessel path."""
         f = GaussianFilter.build(sigma, self.dt)
@@ -173,6 +177,7 @@ class Prepared:
         )
 
 
+MIN_TRAVEL_COUNTS = 50  # an angle that moves less than this is "still" for the diagnosis
 MAX_SIGMA = 0.05  # s, widest filter the diagnosis uses (sets the margin at the ends)
 
 

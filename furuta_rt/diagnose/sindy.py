@@ -86,7 +86,8 @@ def interpret(eqs: dict[str, dict[str, float]], rig: RigConfig) -> tuple[dict, d
     if "phd" in ph_eq:
         named["arm_viscous"] = {"Fv": -ph_eq["phd"] / b_arm}
     if "ph" in ph_eq:
-        named["arm_spring"] = {"k": -ph_eq["ph"] / b_arm}
+        k = -ph_eq["ph"] / b_arm
+        named["arm_spring"] = {"k": k, "phi0": ph_eq.get("1", 0.0) / b_arm / k if k else 0.0}
     if "thd" in th_eq:
         named["pendulum_viscous"] = {"bp": -th_eq["thd"] / b_pend}
     if "1" in th_eq:

@@ -181,19 +181,19 @@ class CaseScore:
 def score(case: Case, diagnosis_json: dict, seconds: float) -> CaseScore:
     injected = case.injected
     reported = {e["name"]: e["params"] for e in diagnosis_json["effects"]}
-    alternatives = {
-        a["alternative"]["name"]: (a["effects"][0], a["alternative"]["params"]) for a in diagnosis_json["ambiguities"]
-    }
+    # an ambiguity offers a whole alternative model of its equation (companion effects refitted with it)
+    alternatives = {a["alternative"]["name"]: a for a in diagnosis_json["ambiguities"]}
+    chosen = [a for n, a in alternatives.items() if n in injected]
+    alt_params = {k: v for a in chosen for k, v in a.get("alternative_model", {}).items()}
     detected, via_alt, errors = {}, {}, {}
     for name, true in injected.items():
-        if name in reported:
-            errors[name] = _error(name, true, reported[name])
-        elif name in alternatives:
-            errors[name] = _error(name, true, alternatives[name][1])
-        ok = name in errors and errors[name] <= TOLERANCE
-        detected[name] = ok and name in reported
-        via_alt[name] = ok and name not in reported
-    covered = {alternatives[n][0] for n in injected if n in alternatives}
+        strict = _error(name, true, reported[name]) if name in reported else np.inf
+        alt = _error(name, true, alt_params[name]) if name in alt_params else np.inf
+        if min(strict, alt) < np.inf:
+            errors[name] = min(strict, alt)
+        detected[name] = strict <= TOLERANCE
+        via_alt[name] = not detected[name] and alt <= TOLERANCE
+    covered = {a["effects"][0] for a in chosen}
     false = [n for n in reported if n not in injected and n not in covered]
     fit = diagnosis_json["fit"]
     return CaseScore(case, detected, via_alt, errors, false, fit["nominal"], fit["augmented"], seconds,

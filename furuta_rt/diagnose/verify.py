@@ -59,7 +59,8 @@ class Prediction:
 
     @property
     def nrmse(self) -> float:
-        return 0.5 * (self.nrmse_theta + self.nrmse_phi)
+        """Mean over θ and φ (θ alone when the arm does not move)."""
+        return float(np.nanmean([self.nrmse_theta, self.nrmse_phi]))
 
 
 def window_starts(prep: Prepared, start: int, stop: int, horizon: int, spacing: int) -> list[int]:
@@ -97,7 +98,8 @@ def predict(rig: RigConfig, effects: Effects, prep: Prepared, fine: States, star
     v = prep.valid
     s_th = float(np.std(prep.theta_f[v])) or 1.0
     s_ph = float(np.std(prep.phi[v])) or 1.0
-    return Prediction(_rms(e_th) / s_th, _rms(e_ph) / s_ph, len(starts))
+    nrmse_phi = _rms(e_ph) / s_ph if prep.moves(prep.phi) else float("nan")  # an arm that stays put is no test
+    return Prediction(_rms(e_th) / s_th, nrmse_phi, len(starts))
 
 
 def _rms(parts: list[np.ndarray]) -> float:
