@@ -33,7 +33,8 @@ def raise_priority(rt_priority: int = 10) -> str:
     nice −10; returns what was obtained ("fifo", "nice" or "normal"). The device thread sleeps
     most of each period, so real-time priority costs others nothing but removes scheduling delays."""
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rt_priority))
+        policy = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)  # children start at normal priority
+        os.sched_setscheduler(0, policy, os.sched_param(rt_priority))
         return "fifo"
     except (OSError, AttributeError):
         pass
