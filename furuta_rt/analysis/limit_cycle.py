@@ -75,10 +75,12 @@ def orbit_report(
     fc: float,
     loop: str,
     lc: LimitCycleAnalysis | None = None,
-    sim_duration: float = 60.0,
-    transient: float = 20.0,
+    sim_duration: float = 40.0,
+    transient: float = 15.0,
+    keep: dict | None = None,
 ) -> dict:
-    """Periodic orbit (shooting) vs long simulation of the same loop vs the describing function."""
+    """Periodic orbit (shooting) vs long simulation of the same loop vs the describing function.
+    ``keep``, if given, receives the PeriodicOrbit ("orbit") and the simulated Trajectory ("trajectory")."""
     effects = coulomb_effects(rig, fc)
 
     def make() -> IdealLoop | SampledLoop:
@@ -86,10 +88,13 @@ def orbit_report(
 
     try:
         orbit = find_periodic_orbit(make())
-        sim, _ = simulate_limit_cycle(make(), duration=sim_duration, transient=transient,
-                                      crossings_per_period=orbit.crossings_per_period)
+        sim, traj = simulate_limit_cycle(make(), duration=sim_duration, transient=transient,
+                                         crossings_per_period=orbit.crossings_per_period)
     except OrbitNotFound as err:
         return {"loop": loop, "error": str(err)}
+    if keep is not None:
+        keep.update(orbit=orbit, trajectory=traj)
+    worst = max(abs(v) for v in relative_errors(orbit.stats, sim).values())
     out: dict = {
         "loop": loop,
         "fc": fc,
@@ -115,6 +120,11 @@ def orbit_report(
             "amplitude_phi": (df.amplitude_phi - o.amplitude["phi"]) / o.amplitude["phi"],
             "amplitude_theta": (df.amplitude_theta - o.amplitude["theta"]) / o.amplitude["theta"],
         }
+    if worst > 0.05:
+        out["simulation_note"] = (
+            "the long simulation (from θ = 0.05 rad) did not settle on this orbit: it has another attractor, "
+            "or the orbit's basin is smaller than that start"
+        )
     peak = float(np.max(np.abs(orbit.trajectory.u)))
     if loop == "ideal" and peak > rig.actuator.limit:
         out["note"] = (f"the ideal loop commands up to {peak:.3g}, beyond the actuator limit "

@@ -205,7 +205,7 @@ class OrbitStats:
 def _stats(tr: Trajectory, period: float) -> OrbitStats:
     """Amplitudes and stds over whole periods; φ with its mean drift (if any) removed."""
     x = tr.x.copy()
-    drift = float(np.mean(x[:, 3]))
+    drift = float((x[-1, 2] - x[0, 2]) / (tr.t[-1] - tr.t[0])) if len(tr.t) > 1 else 0.0
     x[:, 2] -= drift * (tr.t - tr.t[0])
     amp = {name: float(np.ptp(x[:, i]) / 2) for i, name in enumerate(STATE_LABELS)}
     amp["u"] = float(np.ptp(tr.u) / 2)

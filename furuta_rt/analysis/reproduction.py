@@ -24,13 +24,7 @@ import numpy as np
 from furuta_rt.analysis import figures
 from furuta_rt.analysis.describing_function import SECTION4_CASES, analyze_limit_cycle
 from furuta_rt.analysis.limit_cycle import coulomb_effects, orbit_report
-from furuta_rt.analysis.periodic_orbit import (
-    IdealLoop,
-    Trajectory,
-    find_periodic_orbit,
-    record_trajectory,
-    simulate_limit_cycle,
-)
+from furuta_rt.analysis.periodic_orbit import IdealLoop, Trajectory, record_trajectory
 from furuta_rt.config import CompMode, RigConfig, load_rig
 from furuta_rt.control.controller import design_gains
 from furuta_rt.model.plant import FurutaPlant
@@ -116,17 +110,64 @@ class Calibration:
 
 
 def calibrate_coulomb(
-    rig: RigConfig, grid: np.ndarray | list[float], duration: float = 60.0, transient: float = 15.0, seed: int = 1
+    rig: RigConfig,
+    grid: np.ndarray | list[float],
+    duration: float = 60.0,
+    transient: float = 15.0,
+    seed: int = 1,
+    refine: float = 0.0,
 ) -> Calibration:
-    """Fc minimising ``misfit`` over ``grid`` (runs in which the pendulum falls are excluded)."""
-    scan = []
+    """Fc minimising ``misfit`` over ``grid`` (runs in which the pendulum falls are excluded), then, with
+    ``refine`` > 0, over the best level ± ``refine`` (no further than a level that fell)."""
+    scan: dict[float, tuple[RunStats, float]] = {}
+
+    def run(fc: float) -> None:
+        fc = round(float(fc), 6)
+        if fc not in scan:
+            _, st = run_mode(rig, fc, "none", duration, transient, seed)
+            scan[fc] = (st, misfit(st))
+
     for fc in grid:
-        _, st = run_mode(rig, float(fc), "none", duration, transient, seed)
-        scan.append((float(fc), st, misfit(st)))
-    best = min(scan, key=lambda s: s[2])
-    if not math.isfinite(best[2]):
+        run(fc)
+    best = min(scan, key=lambda f: scan[f][1])
+    if not math.isfinite(scan[best][1]):
         raise RuntimeError("the pendulum falls for every Coulomb level tried")
-    return Calibration(best[0], best[1], scan)
+    if refine > 0:
+        fell = [f for f, (st, _) in scan.items() if st.fell]
+        for fc in (best - refine, best + refine):
+            if fc > 0 and not any(f <= fc for f in fell if f > best):
+                run(fc)
+        best = min(scan, key=lambda f: scan[f][1])
+    rows = [(f, scan[f][0], scan[f][1]) for f in sorted(scan)]
+    return Calibration(best, scan[best][0], rows)
+
+
+def compensation_sensitivity(rig: RigConfig, fc: float, duration: float = 40.0, transient: float = 10.0) -> list[dict]:
+    """Coulomb compensation against its knobs, one at a time from the matched default: the level the
+    compensator assumes (× Fc), the smoothing ε of eq. 1, the observer's acceleration noise, and the
+    sensor noise."""
+    cases: list[tuple[str, float, RigConfig]] = []
+    for k in (0.8, 0.9, 0.95, 1.05, 1.2):
+        cases.append((f"compensator Fc = {k:g} × friction", k, rig))
+    for eps in (0.003, 0.03, 0.1):
+        r = rig.model_copy(deep=True)
+        r.compensation.coulomb.epsilon = eps
+        cases.append((f"ε = {eps:g} rad/s (rig: {rig.compensation.coulomb.epsilon:g})", 1.0, r))
+    for q in (0.5, 2.0, 50.0):
+        r = rig.model_copy(deep=True)
+        r.observer.accel_noise = q
+        cases.append((f"observer accel_noise = {q:g} (rig: {rig.observer.accel_noise:g})", 1.0, r))
+    r = rig.model_copy(deep=True)
+    r.sensors.theta_noise = r.sensors.theta_dot_noise = 0.0
+    cases.append(("no sensor noise", 1.0, r))
+    rows = []
+    for label, k, r in cases:
+        rr = matched_rig(r, fc)
+        rr.compensation.coulomb.Fc = k * fc
+        rec = run_closed_loop(rr, duration, effects=coulomb_effects(rig, fc), mode="coulomb", seed=1)
+        st = run_stats(rr, rec, transient)
+        rows.append({"case": label, **asdict(st)})
+    return rows
 
 
 def table_markdown(results: dict[str, RunStats], fc: float, extra_rows: dict[str, RunStats] | None = None) -> str:
@@ -212,13 +253,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="docs/figures", help="output directory for the PNGs, table and JSON (default docs/figures)")
     ap.add_argument("--quick", action="store_true", help="short runs, no calibration (uses the stored Fc), no shooting")
     ap.add_argument("--config", default=None, help="rig TOML or shipped rig name (default thesis)")
+    ap.add_argument("--sensitivity", action="store_true",
+                    help="also vary the Coulomb compensator's knobs (level, ε, observer, noise): ~1 min more")
     args = ap.parse_args(argv)
     t_start = time.monotonic()
     rig = load_rig(args.config)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     quick = args.quick
-    duration, transient = (24.0, 6.0) if quick else (120.0, 20.0)
+    duration, transient = (24.0, 6.0) if quick else (90.0, 15.0)
 
     def say(msg: str) -> None:
         print(f"[{time.monotonic() - t_start:5.1f} s] {msg}", flush=True)
@@ -229,8 +272,7 @@ def main(argv: list[str] | None = None) -> int:
         fc = CALIBRATED_FC
         say(f"Coulomb friction Fc = {fc} N m (stored calibration; run without --quick to recalibrate)")
     else:
-        grid = np.round(np.arange(0.9, 1.151, 0.025), 3)
-        cal = calibrate_coulomb(rig, grid, duration=60.0, transient=15.0)
+        cal = calibrate_coulomb(rig, [0.9, 1.0, 1.1, 1.2], duration=40.0, transient=10.0, refine=0.025)
         fc = cal.fc
         summary["calibration"] = [{"fc": f, "misfit": m, **asdict(s)} for f, s, m in cal.scan]
         for f, s, m in cal.scan:
@@ -253,9 +295,7 @@ def main(argv: list[str] | None = None) -> int:
         # what the model gives without the 2 N m actuator limit (the thesis states none)
         free = rig.model_copy(deep=True)
         free.actuator.limit = 1e3
-        best = min(
-            ((f, run_mode(free, f, "none", 60.0, 15.0)[1]) for f in (1.2, 1.25, 1.3, 1.35)), key=lambda p: misfit(p[1])
-        )
+        best = min(((f, run_mode(free, f, "none", 40.0, 10.0)[1]) for f in (1.25, 1.3, 1.35)), key=lambda p: misfit(p[1]))
         extra[f"none (no actuator limit, Fc = {best[0]:g})"] = best[1]
         summary["no_actuator_limit"] = {"fc": best[0], **asdict(best[1])}
     window = slice(int(transient * rig.control.rate_hz), int((transient + (18.0 if quick else 40.0)) * rig.control.rate_hz))
@@ -273,15 +313,23 @@ def main(argv: list[str] | None = None) -> int:
     if not quick:
         L = design_gains(rig)
         lc = analyze_limit_cycle(FurutaPlant(rig.lumped()), L, fc, actuator=rig.actuator)
+        kept: dict = {}
         summary["limit_cycle"] = {"describing_function": lc.to_dict(),
-                                  **{loop: orbit_report(rig, L, fc, loop, lc) for loop in ("ideal", "sampled")}}
-        orbit = find_periodic_orbit(IdealLoop(rig, L, coulomb_effects(rig, fc)))
-        _, sim_tr = simulate_limit_cycle(IdealLoop(rig, L, coulomb_effects(rig, fc)), duration=40.0, transient=10.0)
+                                  "ideal": orbit_report(rig, L, fc, "ideal", lc, keep=kept),
+                                  "sampled": orbit_report(rig, L, fc, "sampled", lc)}
         m = lc.main
-        figures.orbit_figure(orbit, sim_tr, m.omega if m else None, m.amplitude_phidot if m else None,
-                             out / "limit_cycle_orbit.png", f"ideal loop, Coulomb Fc = {fc:g} N m")
+        if kept:
+            figures.orbit_figure(kept["orbit"], kept["trajectory"], m.omega if m else None, m.amplitude_phidot if m else None,
+                                 out / "limit_cycle_orbit.png", f"ideal loop, Coulomb Fc = {fc:g} N m")
         say("limit cycle: describing function vs periodic orbit vs simulation")
     table = table_markdown(results, fc, extra)
+    if args.sensitivity:
+        rows = compensation_sensitivity(rig, fc)
+        summary["coulomb_sensitivity"] = rows
+        table += "\nCoulomb compensation, one knob at a time (40 s runs):\n\n"
+        table += "| case | std θ | std φ | std u |\n|---|---:|---:|---:|\n"
+        table += "".join(f"| {r['case']} | {r['std_theta']:.3g} | {r['std_phi']:.3g} | {r['std_u']:.3g} |\n" for r in rows)
+        say("Coulomb compensation sensitivity")
     (out / "reproduction_table.md").write_text(table)
     summary["table"] = {m: asdict(s) for m, s in {**results, **extra}.items()}
     summary["thesis"] = THESIS_STD

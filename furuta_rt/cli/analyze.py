@@ -128,6 +128,8 @@ def _print(out: dict) -> None:
                       f"φ amplitude {100 * d['amplitude_phi']:+.1f}%, θ amplitude {100 * d['amplitude_theta']:+.1f}%")
         if abs(o["drift_phi_dot"]) > 1e-6:
             con.print(f"the orbit drifts: mean arm velocity {o['drift_phi_dot']:.4g} rad/s (φ amplitude about the drift)")
+        if "simulation_note" in rep:
+            con.print(f"[yellow]note:[/] {rep['simulation_note']}")
         if "describing_function_note" in rep:
             con.print(f"[yellow]note:[/] {rep['describing_function_note']}")
         if "note" in rep:
