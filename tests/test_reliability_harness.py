@@ -506,7 +506,7 @@ class DaemonProcess:
 
 
 def start_daemon(tmp: Path, port: str, *, duration: float | None, watchdog_ms: int = 500, log: bool = True,
-                 extra: list[str] = (), rig: Path | None = None, **popen: Any) -> DaemonProcess:
+                 extra: list[str] = (), rig: str | Path | None = None, **popen: Any) -> DaemonProcess:
     """``furuta-rt run --port PORT`` with the test rig, a log and a summary JSON in ``tmp``."""
     args = ["--port", port, "--config", str(rig or write_test_rig(tmp)), "--no-tui", "--watchdog-ms", str(watchdog_ms),
             "--summary-json", str(tmp / "summary.json")]
