@@ -1,9 +1,10 @@
 # Shared by scripts/*: create or reuse .venv in the repo and install the project into it.
-# Usage: source scripts/_venv.sh [extras]
+# Usage: [VENV_EXTRAS=test] source scripts/_venv.sh
+# (extras come from VENV_EXTRAS, never from "$1": a sourced file sees its caller's arguments)
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$ROOT/.venv"
-EXTRAS="${1:-}"
+EXTRAS="${VENV_EXTRAS:-}"
 if [ ! -x "$VENV/bin/python" ]; then
     python3 -m venv "$VENV"
 fi
