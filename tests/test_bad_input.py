@@ -283,9 +283,7 @@ def test_bad_mock_options(argv: list[str]) -> None:
 
 # ------------------------------------------------------------------ through the real console scripts
 @pytest.mark.parametrize("argv", [
-    ["design", "--config", "{bad_syntax.toml}"],
     ["replay", "{png.mcap}"],
-    ["convert", "{non_numeric.csv}", "-o", "{dir}/x.mcap"],
     ["run", "--port", "/dev/ttyNOPE7", "--duration", "1"],
 ])
 def test_console_script_one_line_exit_2(files: dict[str, Path], argv: list[str]) -> None:

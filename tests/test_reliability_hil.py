@@ -47,7 +47,7 @@ def test_corrupted_and_dropped_bytes_keep_balancing(tmp_path: Path) -> None:
     counts the errors, balances throughout, and logs only SAMPLEs that reached the host intact."""
     rates = ["--corrupt-rate", "1e-3", "--drop-rate", "1e-3", "--rx-corrupt-rate", "1e-3", "--rx-drop-rate", "1e-3"]
     mock = MockProcess(tmp_path, [*rates, "--seed", "3"])
-    daemon = start_daemon(tmp_path, mock.port, duration=4.0)
+    daemon = start_daemon(tmp_path, mock.port, duration=3.0)
     rc = daemon.wait()
     rec = mock.stop()
     assert traceback_free(daemon.stderr + daemon.stdout), daemon.stderr
@@ -55,10 +55,10 @@ def test_corrupted_and_dropped_bytes_keep_balancing(tmp_path: Path) -> None:
     s = read_summary(tmp_path)
     assert s["end"] == "duration" and s["final_state"] != "tripped"
     assert s["crc_errors"] > 0 and s["seq_gaps"] > 0, "host-side errors are counted"
-    assert s["balanced_s"] > 3.5
+    assert s["balanced_s"] > 2.5
     st = rec.stats
-    assert st["tx_bytes_corrupted"] > 20 and st["tx_bytes_dropped"] > 20
-    assert st["rx_bytes_corrupted"] > 5 and st["crc_errors"] + st["frame_errors"] > 0, "device-side errors counted"
+    assert st["tx_bytes_corrupted"] > 10 and st["tx_bytes_dropped"] > 10
+    assert st["rx_bytes_corrupted"] > 3 and st["crc_errors"] + st["frame_errors"] > 0, "device-side errors counted"
     assert rec.samples_damaged, "the mock damaged SAMPLE frames"
     log = read_log(tmp_path / "run.mcap")
     assert not log.recovered and log.n_ticks == s["ticks"]
