@@ -6,7 +6,9 @@ from __future__ import annotations
 import math
 import os
 import queue
+import select
 import signal
+import threading
 import time
 from collections import deque
 from pathlib import Path
@@ -15,6 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+import firmware_protocol as fp
 from firmware_protocol import COMMAND_FULL_SCALE, CommandFlags, Sample, StatusFlags, counts_to_actuator
 from furuta_rt.cli import main as cli_main
 from furuta_rt.config import RigConfig, load_rig
@@ -255,6 +258,19 @@ def test_repeated_overruns_trip(rig: RigConfig) -> None:
     assert dev.writes[-2][2:] == (0, 0)
 
 
+def test_seq_going_back_trips_with_zero(rig: RigConfig) -> None:
+    """The device restarts its seq without a handshake (a reboot the host did not see): trip at once."""
+    def restart(dev: SimDevice) -> None:
+        if dev.seq == 300 and not dev.queue:
+            dev.seq = 0
+
+    dev = SimDevice(rig, on_read=restart)
+    loop, _ = make_loop(rig, dev, duration=10.0)
+    r = loop.run()
+    assert r.end == "trip" and r.trip_reason == "sequence" and "from 299 to 0" in r.trip_message
+    assert dev.writes[-2] == ("write", 0, 0, 0) and not [w for w in dev.writes[300:] if w[3] & ENABLE]
+
+
 def test_latched_device_fault_is_cleared_while_idle_before_arming(rig: RigConfig) -> None:
     wd = int(StatusFlags.WATCHDOG_TRIPPED)
     dev = SimDevice(rig, status={0: wd, 1: wd, 2: wd})
@@ -333,6 +349,85 @@ def test_usb_latency_timer_above_1ms_is_reported_with_the_fix(tmp_path: Path) ->
     (sysfs / "ttyUSB3" / "latency_timer").write_text("1\n")
     assert check_usb_latency(str(link), None, sysfs=str(sysfs)) is None
     assert check_usb_latency("/dev/ttyACM0", None, sysfs=str(sysfs)) is None
+
+
+class ScriptedDaq:
+    """A device on a raw pty that answers HELLO with ``ack`` (fields overridden) and CONFIG with ``status``."""
+
+    def __init__(self, ack: dict[str, Any], status_flags: int = 0, status_rate: int | None = None) -> None:
+        from hil_mock.ptyport import open_raw_pty
+
+        self.fd, self.port = open_raw_pty()
+        self.ack, self.status_flags, self.status_rate = ack, status_flags, status_rate
+        self.received: list[Any] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        decoder = fp.StreamDecoder()
+        while not self._stop.is_set():
+            if not select.select([self.fd], [], [], 0.01)[0]:
+                continue
+            try:
+                data = os.read(self.fd, 4096)
+            except OSError:  # EIO until the host opens the port, and after it closes it
+                time.sleep(0.01)
+                continue
+            for msg in decoder.feed(data):
+                self.received.append(msg)
+                if isinstance(msg, fp.Hello):
+                    base = dict(protocol_version=fp.PROTOCOL_VERSION, schema_hash=fp.SCHEMA_HASH, nonce=msg.nonce,
+                                device_id=7, fw_major=1, fw_minor=2, fw_patch=3, sample_rate_hz=500, watchdog_ms=20,
+                                theta_rad_per_count=1e-4, theta_offset_counts=0, theta_dot_rad_s_per_count=1e-3,
+                                theta_dot_offset_counts=0, phi_counts_per_rev=4096, actuator_full_scale=2.0,
+                                actuator_kind=0)
+                    os.write(self.fd, fp.encode(fp.HelloAck(**{**base, **self.ack})))
+                elif isinstance(msg, fp.Config):
+                    rate = msg.rate_hz if self.status_rate is None else self.status_rate
+                    os.write(self.fd, fp.encode(fp.Status(self.status_flags, rate, msg.watchdog_ms, 0, 0, 1, 0)))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+        os.close(self.fd)
+
+
+@pytest.mark.parametrize(
+    ("ack", "status_flags", "needle"),
+    [
+        ({"schema_hash": fp.SCHEMA_HASH ^ 1}, 0, "schema hash mismatch"),
+        ({"protocol_version": fp.PROTOCOL_VERSION + 1}, 0, "protocol version mismatch"),
+        ({"sample_rate_hz": 1000}, int(fp.StatusFlags.CONFIG_REJECTED), "rejected rate 500 Hz"),
+    ],
+)
+def test_handshake_refuses_a_mismatched_device(ack: dict[str, Any], status_flags: int, needle: str) -> None:
+    daq = ScriptedDaq(ack, status_flags)
+    hw = SerialHardware(daq.port)
+    try:
+        with pytest.raises(UserError, match=needle):
+            hw.handshake(500, 20)
+    finally:
+        hw.close()
+        daq.close()
+
+
+def test_handshake_configures_rate_and_watchdog_and_reads_the_calibration() -> None:
+    daq = ScriptedDaq({"sample_rate_hz": 1000, "theta_offset_counts": -12, "theta_dot_offset_counts": 5})
+    hw = SerialHardware(daq.port)
+    try:
+        info = hw.handshake(500, 40)
+    finally:
+        hw.close()
+        daq.close()
+    configs = [m for m in daq.received if isinstance(m, fp.Config)]
+    assert configs == [fp.Config(rate_hz=500, watchdog_ms=40)], "HELLO_ACK said 1000 Hz: CONFIG asks for 500"
+    assert (info.rate_hz, info.watchdog_ms, info.firmware, info.actuator_kind) == (500, 40, "1.2.3", "torque")
+    cal = info.calibration
+    assert cal.theta_offset_counts == -12 and info.theta_dot_offset_counts == 5 and cal.phi_counts_per_rev == 4096
+    assert cal.theta_rad_per_count == pytest.approx(1e-4, rel=1e-7)  # binary32 on the wire
+    meta = info.metadata()
+    assert meta["device_id"] == "0x00000007" and meta["applied_rate_hz"] == "500"
 
 
 def test_missing_device_is_a_one_line_user_error() -> None:

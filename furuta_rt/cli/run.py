@@ -4,7 +4,8 @@
     furuta-rt run --port /dev/ttyACM0 --log run.mcap   the rig
 
 Exit codes: 0 duration reached or operator stop (SIGINT/SIGTERM: u = 0 sent, log closed, summary
-printed); 1 the safety supervisor tripped (reason printed); 2 user error (one line, no traceback).
+printed); 1 the safety supervisor tripped (reason printed); 2 user error (one line, no traceback);
+3 the run ended but its log is incomplete (disk full, ...); 130 interrupted during start-up.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="run the balancing loop on the rig (--port) or the simulated pendulum (--mock)",
         description="Fixed-rate control daemon: read SAMPLE → u = L·x + friction compensation → COMMAND, "
         "with a safety supervisor, an MCAP log and a live dashboard. Exit 0: duration reached or stopped "
-        "by the operator (Ctrl-C); 1: tripped; 2: user error.",
+        "by the operator (Ctrl-C); 1: tripped; 2: user error; 3: the log is incomplete (disk full).",
     )
     add_config_argument(p)
     src = p.add_mutually_exclusive_group()

@@ -12,7 +12,8 @@ Start-up order matters: the device handshake comes last, right before the first 
 pendulum (real or simulated) starts moving when the device starts streaming.
 
 Exit codes: 0 the duration was reached or the operator stopped the run (SIGINT/SIGTERM), with u = 0
-sent and the log closed; 1 the supervisor tripped (reason printed); 2 user error (one line).
+sent and the log closed; 1 the supervisor tripped (reason printed); 2 user error (one line); 3 the run
+ended but the log it was asked for is incomplete (the logger could not write: disk full, ...).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import dataclasses
 import json
 import multiprocessing
 import os
+import signal
 import socket
 import sys
 import time
@@ -41,7 +43,7 @@ from furuta_rt.runtime.summary import format_summary, summary_dict
 
 LOG_QUEUE_BATCHES = 200  # 20 s of ticks at 10 batches/s before the loop starts dropping
 CHILD_START_TIMEOUT_S = 60.0
-EXIT_OK, EXIT_TRIPPED = 0, 1
+EXIT_OK, EXIT_TRIPPED, EXIT_LOG_INCOMPLETE = 0, 1, 3
 
 
 @dataclass
@@ -105,6 +107,7 @@ class _Children:
     def __init__(self) -> None:
         self.ctx = multiprocessing.get_context("spawn")
         self.log_q: Any = None
+        self.log_failed: Any = None
         self.logger: Any = None
         self.dash_q: Any = None
         self.dashboard: Any = None
@@ -113,7 +116,9 @@ class _Children:
         """Start the logger process (returns at once; ``wait_logger`` waits for it to be ready)."""
         self.log_q = self.ctx.Queue(maxsize=LOG_QUEUE_BATCHES)
         self._ready = self.ctx.Event()
-        proc = self.ctx.Process(target=logger_process, args=(setup, self.log_q, self._ready), name="furuta-rt-logger")
+        self.log_failed = self.ctx.Event()
+        proc = self.ctx.Process(target=logger_process, args=(setup, self.log_q, self._ready, self.log_failed),
+                                name="furuta-rt-logger")
         proc.start()
         self.logger = proc
         self._log_path = setup.path
@@ -138,22 +143,24 @@ class _Children:
         self.dashboard.join(3.0)
         if self.dashboard.is_alive():
             self.dashboard.terminate()
+        self.dash_q.cancel_join_thread()  # what it did not take must not hold this process at exit
         self.dashboard = None
 
     def close_logger(self, summary: str) -> bool:
-        """Send "close" and wait for the file to be finished; True if it was."""
+        """Send "close" and wait for the file to be finished; True if it was, complete."""
         if self.logger is None:
             return True
         ok = True
         try:
             self.log_q.put(("close", summary), timeout=10.0)
-        except Exception:
+        except Exception:  # full (a dead logger): judged below
             ok = False
         self.logger.join(30.0)
         if self.logger.is_alive():
             self.logger.terminate()
             ok = False
-        ok = ok and self.logger.exitcode == 0
+        ok = ok and self.logger.exitcode == 0 and not self.log_failed.is_set()
+        self.log_q.cancel_join_thread()  # batches a dead logger never took must not hang our exit
         self.logger = None
         return ok
 
@@ -204,6 +211,9 @@ def run_daemon(opts: RunOptions) -> int:
     result = None
     mock_stats = ""
     log_ok = True
+    # SIGTERM during start-up ends like Ctrl-C (KeyboardInterrupt: exit 130) so the cleanup below runs
+    # and no hil-mock is left behind; the loop installs its own handlers while it runs
+    old_term = signal.signal(signal.SIGTERM, signal.default_int_handler)
     try:
         # start-up in parallel: the logger process, hil-mock (a few seconds of imports each) and, here,
         # the controller's own imports; the device handshake comes last, right before the first tick
@@ -266,6 +276,9 @@ def run_daemon(opts: RunOptions) -> int:
         warnings += late_warnings
         result = loop.run()
     finally:
+        # shutting down: a second Ctrl-C must not cut the log or leave the mock running
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         if hw is not None:
             hw.stop()
             hw.close()
@@ -278,15 +291,19 @@ def run_daemon(opts: RunOptions) -> int:
                 mock_proc = mock_start.result(timeout=60)[0]
         if mock_proc is not None:
             mock_stats = _stop_mock(mock_proc)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, old_term)
     print(summary, flush=True)
     if mock_stats.strip():
         print("\n".join("  " + line for line in mock_stats.strip().splitlines()), flush=True)
     if not log_ok:
-        _say(f"warning: the log {opts.log_path} may be incomplete (the logger did not finish)")
+        _say(f"error: the log {opts.log_path} is incomplete: the logger could not finish it (exit {EXIT_LOG_INCOMPLETE})")
     if opts.summary_json:
         data = summary_dict(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path, warnings=warnings)
         Path(opts.summary_json).write_text(json.dumps(data, indent=1) + "\n")
-    return EXIT_TRIPPED if result.end == "trip" else EXIT_OK
+    if result.end == "trip":
+        return EXIT_TRIPPED
+    return EXIT_OK if log_ok else EXIT_LOG_INCOMPLETE
 
 
 def default_tui() -> bool:

@@ -222,6 +222,13 @@ class SerialHardware(HardwareInterface):
         """HELLO/HELLO_ACK (version, schema hash, nonce) then CONFIG/STATUS. Raises UserError."""
         if self._ser is None:
             self.open()
+        try:
+            return self._handshake(rate_hz, watchdog_ms)
+        except LinkLost as err:
+            raise UserError(f"the device on {self.port} went away during the handshake ({err}); "
+                            "check its cable and power, then retry") from None
+
+    def _handshake(self, rate_hz: int, watchdog_ms: int) -> DeviceInfo:
         self._ser.reset_input_buffer()  # type: ignore[attr-defined]
         self.decoder.reset()
         self._stopped = False

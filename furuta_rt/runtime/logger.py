@@ -16,6 +16,7 @@ Queue items, in order:
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import queue
 import signal
@@ -111,35 +112,60 @@ class TickLog:
         self.writer.close()  # type: ignore[union-attr]
 
 
-def logger_process(setup: LogSetup, q: Any, ready: Any) -> None:
-    """Entry point of the logger process (spawned). Ends on "close" or when the parent dies."""
+def _failure(path: str, err: Exception) -> str:
+    cause = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
+    return f"cannot write the log {path}: {cause}; the loop goes on, the log ends here"
+
+
+def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None) -> None:
+    """Entry point of the logger process (spawned). Ends on "close" or when the parent dies.
+
+    A write error (disk full, file too large, ...) is said in one line on stderr and flagged in
+    ``failed`` (an Event the daemon checks); the process then keeps draining the queue without writing,
+    so the control process is never blocked by it.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the daemon decides
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    log = TickLog(setup)
+    log: TickLog | None = TickLog(setup)
     ready.set()
     parent = multiprocessing.parent_process()
     last_flush = time.monotonic()
-    try:
-        while True:
-            try:
-                item = q.get(timeout=0.2)
-            except queue.Empty:
-                item = None
-            except (EOFError, OSError):
-                break
-            if item is not None and not log.handle(item):
+
+    def fail(err: Exception) -> None:
+        nonlocal log
+        print(f"furuta-rt: error: {_failure(setup.path, err)}", file=sys.stderr, flush=True)
+        if failed is not None:
+            failed.set()
+        if log is not None and log.writer is not None:
+            with contextlib.suppress(Exception):  # whatever still fits; the file is readable up to its last chunk
+                log.writer.close()
+        log = None
+
+    while True:
+        try:
+            item = q.get(timeout=0.2)
+        except queue.Empty:
+            item = None
+        except (EOFError, OSError):
+            break
+        if item is not None and item[0] == "close" and log is None:
+            break
+        try:
+            if log is not None and item is not None and not log.handle(item):
                 break
             now = time.monotonic()
-            if now - last_flush >= setup.flush_s:
+            if log is not None and now - last_flush >= setup.flush_s:
                 log.flush()
                 last_flush = now
-            if item is None and parent is not None and not parent.is_alive():
-                log.event(time.time_ns(), "ERROR", "the control process ended without closing the log")
-                break
-    except UserError as err:
-        print(f"furuta-rt logger: {err}", file=sys.stderr)
-    finally:
+        except (OSError, UserError) as err:
+            fail(err)
+        if item is None and parent is not None and not parent.is_alive():
+            if log is not None:
+                with contextlib.suppress(OSError, UserError):
+                    log.event(time.time_ns(), "ERROR", "the control process ended without closing the log")
+            break
+    if log is not None:
         try:
             log.close()
-        except UserError as err:
-            print(f"furuta-rt logger: {err}", file=sys.stderr)
+        except (OSError, UserError) as err:
+            fail(err)

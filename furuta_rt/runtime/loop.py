@@ -295,8 +295,14 @@ class ControlLoop:
             else:
                 period_us = (t1 - prev_start) * 1e-3
                 gap = (seq - prev_seq - 1) & 0xFFFFFFFF
-                if 0 < gap < 0x80000000:
-                    r.seq_gaps += gap
+                if gap >= 0x80000000:  # seq repeated or went back: not this session's stream any more
+                    self._zero()
+                    sup.trip(seq, TripReason.SEQUENCE, f"SAMPLE seq went from {prev_seq} to {seq}: the device "
+                             "restarted without a handshake")
+                    r.end = "trip"
+                    self._transitions()
+                    return
+                r.seq_gaps += gap
             prev_start = t1
             prev_seq = seq
             stale = hw.pending > 0

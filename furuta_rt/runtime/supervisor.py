@@ -50,6 +50,7 @@ class TripReason:
     THETA_LIMIT = "theta_limit"
     PHI_LIMIT = "phi_limit"
     LINK_LOSS = "link_loss"
+    SEQUENCE = "sequence"  # the SAMPLE seq went back: the device restarted without a handshake
     SENSOR_FAULT = "sensor_fault"
     DEVICE_FAULT = "device_fault"
     NONFINITE = "nonfinite"
