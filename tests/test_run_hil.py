@@ -214,3 +214,20 @@ def test_killed_run_leaves_a_log_readable_to_its_last_second(tmp_path: Path) -> 
     assert balanced > killed_after - 1.6, f"{balanced:.2f} s of balancing in the log, killed after {killed_after:.2f} s"
     counts = independent_mcap_counts(path)
     assert counts["topics"][ls.TICK_TOPIC] >= log.n_ticks
+
+
+def test_ctrl_c_in_a_terminal_stops_the_mock_run_cleanly(tmp_path: Path) -> None:
+    """Ctrl-C in a terminal signals the whole process group: the daemon, its logger and hil-mock at once.
+    hil-mock may close its pty before the daemon notices the signal; it is still an operator stop."""
+    d = mock_run(tmp_path, "ctrl_c", 60.0)
+    d.wait_for_line("→ balancing")
+    time.sleep(1.0)
+    d.kill_group(signal.SIGINT)
+    rc = d.wait(timeout=60)
+    assert rc == 0 and traceback_free(d.stderr + d.stdout), d.stderr
+    assert "stopped by the operator" in d.stdout
+    s = read_summary(tmp_path / "ctrl_c")
+    assert s["end"] == "operator_stop"
+    log = read_log(tmp_path / "ctrl_c" / "run.mcap")
+    assert not log.recovered and log.n_ticks == s["ticks"]
+    assert any("operator stop (SIGINT)" in str(e["message"]) for e in log.events)

@@ -47,9 +47,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "(the default when stdout is not a terminal)")
     p.add_argument("--tui", action="store_true", help="force the live dashboard")
     p.add_argument("--no-rt", action="store_true", help="do not ask for SCHED_FIFO, memory locking or CPU pinning")
+    p.add_argument("--cpu", type=int, metavar="N", help="pin the control loop to CPU N (with SCHED_FIFO; default: not "
+                   "pinned, as on a shared machine a pinned task cannot move away from a busy CPU)")
     p.add_argument("--baud", type=int, default=1_000_000, help="UART baud rate (ignored by USB CDC; default 1000000)")
     p.add_argument("--watchdog-ms", type=int, metavar="MS",
-                   help="device watchdog (default 20 ms and at least 5 periods; with --mock 100 ms)")
+                   help=f"device watchdog (default 20 ms and at least 5 periods; with --mock {MOCK_TIMEOUT_MS:g} ms)")
     p.add_argument("--link-timeout-ms", type=float, metavar="MS",
                    help="no SAMPLE for this long trips the loop (default: safety.link_loss_periods periods; "
                    f"with --mock {MOCK_TIMEOUT_MS:g} ms)")
@@ -145,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
         log_path=args.log,
         tui=(args.tui or default_tui()) and not args.no_tui,
         realtime=not args.no_rt,
+        cpu=args.cpu,
         gains=gains,
         summary_json=args.summary_json,
         rig_source=rig_source,

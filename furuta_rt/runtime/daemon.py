@@ -60,6 +60,7 @@ class RunOptions:
     log_path: str | None = None
     tui: bool = False
     realtime: bool = True
+    cpu: int | None = None  # pin the control loop to this CPU (opt-in)
     gains: list[float] | None = None
     summary_json: str | None = None
     rig_source: str = "thesis"
@@ -238,7 +239,7 @@ def run_daemon(opts: RunOptions) -> int:
         hw.open()
         warnings += hw.warnings
         children.wait_logger()
-        applied, rt_warnings = setup_realtime(opts.realtime)
+        applied, rt_warnings = setup_realtime(opts.realtime, cpu=opts.cpu)
         warnings += rt_warnings
         sys.setswitchinterval(1e-4)  # a queue feeder thread must give the GIL back quickly
         for w in warnings:

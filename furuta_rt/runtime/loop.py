@@ -214,7 +214,10 @@ class ControlLoop:
             self._run()
         except LinkLost as err:
             self._zero()
-            self._end_link_loss(str(err))
+            if self._stop is not None:  # Ctrl-C reached the whole group: hil-mock closed its pty first
+                self._operator_stop()
+            else:
+                self._end_link_loss(str(err))
         except BaseException as err:
             self._zero()
             self.sup.trip(self._last_seq, TripReason.ERROR, f"{type(err).__name__}: {err}")
@@ -233,6 +236,11 @@ class ControlLoop:
             r.crc_errors = self.hw.crc_errors
             self._flush_batch()
         return self.result
+
+    def _operator_stop(self) -> None:
+        self.sup.trip(self._last_seq, TripReason.OPERATOR_STOP, f"operator stop ({self._stop})")
+        self.result.end = "operator_stop"
+        self._transitions()
 
     def _end_link_loss(self, message: str) -> None:
         self.sup.trip(self._last_seq, TripReason.LINK_LOSS, message)
@@ -270,9 +278,7 @@ class ControlLoop:
             t1 = perf()
             if self._stop is not None:
                 self._zero()
-                sup.trip(self._last_seq, TripReason.OPERATOR_STOP, f"operator stop ({self._stop})")
-                r.end = "operator_stop"
-                self._transitions()
+                self._operator_stop()
                 return
             if s is None:
                 waited = (t1 - t0) * 1e-9
