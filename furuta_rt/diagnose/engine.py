@@ -226,8 +226,10 @@ def check_lookalikes(
             t = _paired_t(alt.fit.cv_block, r.selected.fit.cv_block)
             plausible = CANDIDATES[other].plausible(alt.params[other], ems[eq].ctx.rig)
             rel = (alt.cv - r.selected.cv) / r.selected.cv
-            close = t < opts.ambiguity_t or rel < opts.ambiguity_gain
-            if plausible and close and alt.t_stat.get(other, 0.0) >= opts.thresholds.t_min:
+            # told apart: the alternative is clearly worse (by ≥ 1 % and consistently over the blocks, or by ≥ 10 %)
+            apart_by_data = rel >= opts.ambiguity_gain and (t >= opts.ambiguity_t or rel >= 10 * opts.ambiguity_gain)
+            significant = alt.t_stat.get(other, 0.0) >= opts.thresholds.t_min
+            if plausible and significant and not apart_by_data:
                 ambiguous.append({
                     "effects": [name, other], "reported": name,
                     "alternative": {"name": other, "params": alt.params[other]},
@@ -237,12 +239,13 @@ def check_lookalikes(
                     "experiment": experiment,
                 })
             else:
-                apart.append({
-                    "effects": [name, other], "reported": name,
-                    "reason": f"{other} in its place fits worse ({100 * rel:+.2f} % held-out error, paired t = {t:.1f})"
-                              if plausible else f"{other} in its place needs implausible values {alt.params[other]}",
-                    "experiment": experiment,
-                })
+                if not plausible:
+                    why = f"{other} in its place needs implausible values {alt.params[other]}"
+                elif not significant:
+                    why = f"{other} in its place is not significant (t = {alt.t_stat.get(other, 0.0):.1f})"
+                else:
+                    why = f"{other} in its place fits worse ({100 * rel:+.2f} % held-out error, paired t = {t:.1f})"
+                apart.append({"effects": [name, other], "reported": name, "reason": why, "experiment": experiment})
     return ambiguous, apart
 
 
@@ -303,6 +306,14 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     for eq, r in res.items():
         ev = r.selected
         for name in ev.spec.effects:
+            kind = CANDIDATES[name].nonlinear
+            if kind is not None:
+                grid = ems[eq].grid(kind)
+                value = ev.spec.d_inertia if kind == "inertia" else getattr(ev.spec.path, kind)
+                step = float(np.median(np.diff(grid)))
+                if value is not None and (value <= grid[0] + step or value >= grid[-1] - step):
+                    notes.append(f"{name}: {ev.params[name]} is at the edge of the range searched; the data asks for "
+                                 "more than the library's range (treat it as a sign of other missing physics)")
             without = ems[eq].evaluate(ev.spec.without(name))
             gain = (without.cv - ev.cv) / without.cv if without.cv else 0.0
             found.append(Found(name, eq, ev.params[name], ev.se.get(name, {}), float(ev.t_stat.get(name, 0.0)), gain))

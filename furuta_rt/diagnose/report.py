@@ -100,13 +100,19 @@ def figures(d: Diagnosis, out: Path, prefix: str = "") -> list[Path]:
         key = max(corr, key=lambda k: abs(corr[k])) if corr else None
         rows = d.models[eq].row_mask
         y0 = d.models[eq].residual(r.nominal.spec)[rows]
-        if key is not None:
+        if abs(r.location.correlations.get("1", 0.0)) > 0.5:  # a constant bias: show it against time and zero
+            a.plot(t[rows], y0, ".", ms=1, alpha=0.3, color="C3")
+            a.axhline(0.0, color="k", lw=0.8)
+            a.set_xlabel("t (s)")
+            key = "1"
+        elif key is not None:
             x = features(ctx, eq)[key][rows]
             a.plot(x, y0, ".", ms=1, alpha=0.3, color="C3")
             a.set_xlabel(key)
         a.set_ylabel(f"{eq} residual, nominal (N m)")
         regions = ", ".join(f"{k} ×{v:.1f}" for k, v in r.location.regions.items())
-        a.set_title(f"{eq}: r = {corr.get(key, 0):+.2f}; rms by region: {regions}", fontsize=7)
+        what = "constant bias" if key == "1" else f"r = {corr.get(key, 0):+.2f} with {key}"
+        a.set_title(f"{eq}: {what}; rms by region: {regions}", fontsize=7)
     paths.append(_save(fig, out / f"{prefix}where.png"))
     # held-out prediction windows
     pred = d.prediction
