@@ -11,15 +11,12 @@ from __future__ import annotations
 import random
 
 import pytest
-from test_reliability_harness import ListSink, PtyDevice, load_fuzz_protocol
+from test_reliability_harness import load_fuzz_protocol, run_host_loop
 
 import firmware_protocol as fp
 from furuta_rt.config import load_rig
-from furuta_rt.control.controller import Controller
-from furuta_rt.model.rig import calibration_from_config
-from furuta_rt.runtime.hardware import SerialHardware
-from furuta_rt.runtime.loop import TICK_RECORD, ControlLoop, LoopSettings
-from furuta_rt.runtime.supervisor import STATE_NAMES, Supervisor, SupervisorLimits
+from furuta_rt.runtime.loop import TICK_RECORD
+from furuta_rt.runtime.supervisor import STATE_NAMES
 
 FUZZ = load_fuzz_protocol()
 CHUNKS = 20_000
@@ -103,21 +100,7 @@ def test_corrupted_samples_cause_no_tick_and_no_command_in_the_daemon_loop() -> 
             theta_adc = rng.randint(-60, 60)  # |θ| < 0.006 rad: arms and balances
             intact[seq] = theta_adc
             pieces.append(_sample_wire(seq, theta_adc))
-    dev = PtyDevice(pieces, period=1.0 / rate).start()
-    hw = SerialHardware(dev.port)
-    hw.open()
-    sink = ListSink()
-    cal = calibration_from_config(rig)
-    limits = SupervisorLimits.from_config(rig.safety, rate)
-    limits = SupervisorLimits(limits.theta_limit, limits.phi_limit, limits.arm_theta, 10**9, limits.settle_ticks)
-    loop = ControlLoop(hw, Controller.from_rig(rig), Supervisor(limits),
-                       LoopSettings(rate_hz=rate, link_timeout_s=0.5, first_sample_timeout=10.0),
-                       full_scale=rig.actuator.limit, calibration=cal, log=sink)
-    try:
-        result = loop.run()
-    finally:
-        hw.close()
-        dev.finish()
+    result, sink, dev, hw = run_host_loop(pieces, link_timeout_s=0.5, rate=int(rate))
     ticks = sink.ticks()
     logged = [rec[I_SEQ] for rec in ticks]
     assert result.end == "trip" and result.trip_reason == "link_loss"  # the stream ended; nothing else tripped it

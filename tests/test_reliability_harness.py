@@ -127,6 +127,35 @@ class PtyDevice:
             os.close(self.fd)
 
 
+def run_host_loop(pieces: list[bytes], *, link_timeout_s: float, rate: int = 500) -> tuple[Any, ListSink, PtyDevice, Any]:
+    """The daemon's own host path in-process: SerialHardware + ControlLoop (thesis rig, its supervisor with
+    the overrun limit lifted: a Python writer thread is not a clock) against a PtyDevice writing ``pieces``.
+    Returns (LoopResult, the logger sink, the device with the COMMANDs it got, the hardware)."""
+    from furuta_rt.config import load_rig
+    from furuta_rt.control.controller import Controller
+    from furuta_rt.model.rig import calibration_from_config
+    from furuta_rt.runtime.hardware import SerialHardware
+    from furuta_rt.runtime.loop import ControlLoop, LoopSettings
+    from furuta_rt.runtime.supervisor import Supervisor, SupervisorLimits
+
+    rig = load_rig("thesis")
+    dev = PtyDevice(pieces, period=1.0 / rate).start()
+    hw = SerialHardware(dev.port)
+    hw.open()
+    sink = ListSink()
+    lim = SupervisorLimits.from_config(rig.safety, rate)
+    lim = SupervisorLimits(lim.theta_limit, lim.phi_limit, lim.arm_theta, 10**9, lim.settle_ticks)
+    loop = ControlLoop(hw, Controller.from_rig(rig), Supervisor(lim),
+                       LoopSettings(rate_hz=rate, link_timeout_s=link_timeout_s, first_sample_timeout=10.0),
+                       full_scale=rig.actuator.limit, calibration=calibration_from_config(rig), log=sink)
+    try:
+        result = loop.run()
+    finally:
+        hw.close()
+        dev.finish()
+    return result, sink, dev, hw
+
+
 # ------------------------------------------------------------------ MCAP read-back
 def mcap_counts_python_stream(path: str | Path) -> dict[str, Any]:
     """Messages per topic through mcap's Python StreamReader (tolerates a torn end)."""

@@ -10,15 +10,11 @@ ControlLoop over a pty, fed by a scripted device (tests/test_reliability_harness
 
 from __future__ import annotations
 
-from test_reliability_harness import ListSink, PtyDevice
+from test_reliability_harness import ListSink, PtyDevice, run_host_loop
 
 import firmware_protocol as fp
 from furuta_rt.config import load_rig
-from furuta_rt.control.controller import Controller
-from furuta_rt.model.rig import calibration_from_config
-from furuta_rt.runtime.hardware import SerialHardware
-from furuta_rt.runtime.loop import TICK_RECORD, ControlLoop, LoopResult, LoopSettings
-from furuta_rt.runtime.supervisor import Supervisor, SupervisorLimits
+from furuta_rt.runtime.loop import TICK_RECORD, LoopResult
 
 RATE = 500
 I_WALL = TICK_RECORD.index("wall_ns")
@@ -30,21 +26,7 @@ def _sample(seq: int, t_us: int) -> bytes:
 
 
 def _run(pieces: list[bytes], link_timeout_s: float) -> tuple[LoopResult, ListSink, PtyDevice]:
-    rig = load_rig("thesis")
-    dev = PtyDevice(pieces, period=1.0 / RATE).start()
-    hw = SerialHardware(dev.port)
-    hw.open()
-    sink = ListSink()
-    limits = SupervisorLimits.from_config(rig.safety, RATE)
-    limits = SupervisorLimits(limits.theta_limit, limits.phi_limit, limits.arm_theta, 10**9, limits.settle_ticks)
-    loop = ControlLoop(hw, Controller.from_rig(rig), Supervisor(limits),
-                       LoopSettings(rate_hz=RATE, link_timeout_s=link_timeout_s, first_sample_timeout=10.0),
-                       full_scale=rig.actuator.limit, calibration=calibration_from_config(rig), log=sink)
-    try:
-        result = loop.run()
-    finally:
-        hw.close()
-        dev.finish()
+    result, sink, dev, _ = run_host_loop(pieces, link_timeout_s=link_timeout_s, rate=RATE)
     return result, sink, dev
 
 
@@ -76,6 +58,7 @@ def test_seq_restart_mid_stream_trips_instead_of_driving_the_new_session() -> No
         f"not detected: the loop drove the restarted stream until it ended ({result.ticks} ticks, trip "
         f"{result.trip_reason})"
     )
+    assert result.ticks <= len(first) + 1, f"{result.ticks - len(first)} ticks of the new session ran first"
     # commands in order: find where they start answering the new session (seq goes backwards)
     restart = next((i for i in range(1, len(dev.commands)) if dev.commands[i].seq < dev.commands[i - 1].seq), None)
     after = dev.commands[restart:] if restart is not None else []
