@@ -205,3 +205,14 @@ def test_theta_filter_option() -> None:
     assert with_theta_filter(rig, "80").sensors.bessel_cutoff == 80.0
     with pytest.raises(UserError, match="theta-filter"):
         with_theta_filter(rig, "fast")
+
+
+def test_a_log_is_diagnosed_on_its_balancing_stretch() -> None:
+    from furuta_rt.diagnose.engine import balancing_span
+
+    t = np.arange(10.0)
+    rec = Recording(t=t, theta=t, phi=t, u=t, extra={"balancing": np.array([0, 0, 1, 1, 1, 0, 1, 1, 0, 0.0])})
+    notes: list[str] = []
+    assert list(balancing_span(rec, notes).t) == [2.0, 3.0, 4.0]
+    assert "balancing stretch" in notes[0]
+    assert balancing_span(Recording(t=t, theta=t, phi=t, u=t), []).t is t

@@ -259,6 +259,20 @@ def _windows(prep, start_frac: float, horizon: int, max_windows: int) -> list[in
     return verify.window_starts(prep, a, v[-1], horizon, spacing)
 
 
+def balancing_span(rec: Recording, notes: list[str]) -> Recording:
+    """A log's longest stretch of balancing ticks (idle or tripped ticks follow other physics: the loop is
+    open, the pendulum may hang or be held); the whole recording when it has no such column."""
+    flag = rec.extra.get("balancing")
+    if flag is None or bool(np.all(flag > 0.5)) or not bool(np.any(flag > 0.5)):
+        return rec
+    on = np.concatenate([[0], (flag > 0.5).astype(int), [0]])
+    starts, stops = np.flatnonzero(np.diff(on) == 1), np.flatnonzero(np.diff(on) == -1)
+    i = int(np.argmax(stops - starts))
+    a, b = int(starts[i]), int(stops[i])
+    notes.append(f"diagnosed the longest balancing stretch of the log, t = {rec.t[a]:.1f}–{rec.t[b - 1]:.1f} s")
+    return rec.slice(a, b)
+
+
 ARM_SIGMAS = (0.03, 0.04, 0.05)
 MAX_QUANTISATION_RATIO = 0.02
 
@@ -282,10 +296,11 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     """Diagnose ``rec`` against ``rig`` (see the module docstring)."""
     opts = options or Options()
     t0 = time.perf_counter()
+    notes: list[str] = []
+    rec = balancing_span(rec, notes)
     prep = prepare(rec, rig)
     sigma_arm = opts.sigma_arm or arm_sigma(prep)
     ctx = Context.build(prep, rig, sigma_arm, opts.sigma_pend, opts.sigma_fine)
-    notes: list[str] = []
     ems: dict[str, EquationModel] = {}
     res: dict[str, EquationResult] = {}
     for eq in (ARM, PEND):
