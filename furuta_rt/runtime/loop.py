@@ -268,7 +268,7 @@ class ControlLoop:
         prev_balancing = False
         wrote_prev = False
         skipped = 0
-        first_dev_us = 0
+        first_dev_us = first_t1 = 0
         balance_start = -1
         win_ticks, win_start, win_max = 0, perf(), 0.0
         timeout = st.first_sample_timeout
@@ -377,9 +377,9 @@ class ControlLoop:
             h_wr.add(write_us)
             h_late.add(lateness_us)
             r.ticks = n + 1
-            r.host_span_s = (t1 - self._first_t1) * 1e-9 if n else 0.0
             if n == 0:
-                self._first_t1 = t1
+                first_t1 = t1
+            r.host_span_s = (t1 - first_t1) * 1e-9
             r.device_span_s = (dev_us - first_dev_us) * 1e-6
             if prev_balancing:
                 r.balancing_ticks += 1
@@ -415,5 +415,3 @@ class ControlLoop:
             if target is not None and r.ticks >= target:
                 r.end = "duration"
                 return
-
-    _first_t1 = 0
