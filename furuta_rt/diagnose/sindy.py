@@ -51,7 +51,7 @@ def fit_sindy(rec: Recording, rig: RigConfig, threshold: float = 0.2, degree: in
     thd = np.asarray(rec.theta_dot, float) if rec.theta_dot is not None else np.gradient(th, dt)
     ph = np.asarray(rec.phi, float)
     diff = ps.SmoothedFiniteDifference(smoother_kws={"window_length": 21, "polyorder": 3})
-    phd = diff._differentiate(ph, dt)
+    phd = np.asarray(diff(ph, t=dt)).ravel()
     x = np.column_stack([th, thd, ph, phd])
     D = rig.control.command_delay_ticks
     u = np.concatenate([np.zeros(D), np.asarray(rec.u, float)[: len(rec.u) - D]])[:, None]
