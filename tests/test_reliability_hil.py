@@ -125,12 +125,13 @@ def test_device_reset_trips_and_a_new_run_handshakes_again(tmp_path: Path) -> No
     # device side: the reset zeroed the output, and nothing the host sent afterwards re-enabled it
     (t_reset,) = [t for t, _, what in rec.events if what == "reset"]
     assert rec.output_at(t_reset + 1_000_000) == 0.0  # reboot: zero at once (recorded µs later)
-    hellos = [t for t, _, what in rec.events if what == "hello"]
-    assert len(hellos) == 2 and hellos[0] < t_reset < hellos[1]
-    between = [o for o in rec.outputs if t_reset < o[0] < hellos[1]]
+    hellos = [t for t, _, what in rec.events if what == "hello"]  # a slow ACK may bring a second HELLO per run
+    assert hellos[0] < t_reset, "the first run handshook before the reset"
+    rehello = next(t for t in hellos if t > t_reset)
+    between = [o for o in rec.outputs if t_reset < o[0] < rehello]
     assert all(u == 0.0 for _, _, u in between), "the actuator stayed at zero from the reset to the next handshake"
     # disconnect: trip within two periods of the pty closing (host clock; + 20 ms for scheduling)
-    t_disc = next(t for t, _, what in rec.events if what == "hangup" and t > hellos[1])
+    t_disc = next(t for t, _, what in rec.events if what == "hangup" and t > rehello)
     (trip,) = _trip_events(log2)
     delay_s = (trip["log_time"] - t_disc) * 1e-9
     assert -0.005 < delay_s < 2 / HIL_RATE + 0.02, f"tripped {delay_s * 1e3:.1f} ms after the disconnect"
@@ -158,12 +159,16 @@ def test_host_stall_device_watchdog_zeroes_and_daemon_trips_after_sigcont(tmp_pa
     s = read_summary(tmp_path)
     assert s["end"] == "trip" and s["trip_reason"] in ("device_fault", "overruns"), s["trip_message"]
     assert len(_one_line_errors(daemon.stderr)) == 1, daemon.stderr
-    # device: the watchdog fired and the output was zero within watchdog + 2 periods (+ tick granularity)
+    # device: the watchdog fired and the output was zero within watchdog + 2 periods (+ tick granularity) of
+    # the last COMMAND it received before the daemon stopped (a pty may deliver that one late on a busy box)
     assert rec.stats["watchdog_trips"] >= 1
-    assert rec.output_at(t_stop + (watchdog_ms + 3) * 1_000_000 + 2 * PERIOD_NS) == 0.0
+    t_last = max(c[0] for c in rec.commands if c[0] < t_cont)
+    deadline = t_last + (watchdog_ms + 3) * 1_000_000 + 2 * PERIOD_NS
+    assert deadline < t_cont, "the device was still within its watchdog when the daemon resumed"
+    assert rec.output_at(deadline) == 0.0, "the device watchdog did not zero the actuator in time"
     before = [o for o in rec.outputs if o[0] < t_stop]
     assert any(u != 0.0 for _, _, u in before), "it was balancing (non-zero torque) before the stall"
-    after = [o for o in rec.outputs if o[0] > t_stop + (watchdog_ms + 3) * 1_000_000 + 2 * PERIOD_NS]
+    after = [o for o in rec.outputs if o[0] > deadline]
     assert all(u == 0.0 for _, _, u in after), f"the actuator moved again after the stall: {after[:3]}"
     late = rec.commands_after(t_cont)
     assert not [c for c in late if c[5] & ENABLE], "the daemon sent ENABLE after SIGCONT (acted on stale samples)"
