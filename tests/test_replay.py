@@ -10,6 +10,7 @@ import pytest
 
 from furuta_rt.cli import main
 from furuta_rt.config import RigConfig, load_rig
+from furuta_rt.errors import UserError
 from furuta_rt.io.mcap_read import read_log
 from furuta_rt.model.effects import effects_from_assignments
 from furuta_rt.replay import replay_log
@@ -97,7 +98,7 @@ def test_replay_needs_ticks_and_a_rig(tmp_path: Path, rig: RigConfig, logs: dict
     cut.write_bytes(data[:2000])  # metadata only, no complete chunk
     log = read_log(cut)
     assert log.n_ticks == 0 and log.recovered
-    with pytest.raises(Exception, match="no complete ticks to replay"):
+    with pytest.raises(UserError, match=r"no complete ticks in this log \(cut before its first chunk"):
         replay_log(log)
 
 

@@ -37,6 +37,12 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as err:
         print(f"furuta-rt {args.command}: error: {err}", file=sys.stderr)
         return err.exit_code
+    except OSError as err:
+        # A file or device the user named cannot be used: say which and why, in one line.
+        target = f": {err.filename}" if err.filename else ""
+        reason = (err.strerror or str(err)).lower()
+        print(f"furuta-rt {args.command}: error: {reason}{target} (check the path and its permissions)", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"furuta-rt {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -13,7 +13,7 @@ from rich.table import Table
 from furuta_rt.cli._common import parse_gains
 from furuta_rt.config import load_rig
 from furuta_rt.io.csv import write_csv
-from furuta_rt.io.mcap_read import log_to_recording, read_log
+from furuta_rt.io.mcap_read import log_to_recording, read_log, require_ticks
 from furuta_rt.recording import Recording
 from furuta_rt.replay import ReplayResult, replay_log
 from furuta_rt.replay.plot import plot_recording
@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     err = Console(stderr=True)
     t0 = time.perf_counter()
     with progress_bar("reading") as bar:
-        log = read_log(args.log, timing=False, progress=bar)
+        log = require_ticks(read_log(args.log, timing=False, progress=bar))
     t_read = time.perf_counter() - t0
     for w in log.warnings:
         err.print(f"[yellow]warning:[/] {w}", highlight=False, soft_wrap=True)

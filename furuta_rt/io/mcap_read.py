@@ -435,3 +435,12 @@ def log_to_recording(log: LogData) -> Recording:
         t=tk["t"], theta=tk["theta"], phi=tk["phi"], u=tk["u"],
         theta_dot=None if "theta_dot" in derived else tk["theta_dot"], extra=extra, meta=meta,
     )
+
+
+def require_ticks(log: LogData) -> LogData:
+    """``log`` if it holds at least one tick, else a UserError: a file cut before its first chunk was
+    written (or not a furuta-rt log) has nothing to replay, convert or diagnose."""
+    if log.n_ticks == 0:
+        how = "cut before its first chunk was written" if log.recovered else f"it has no {ls.TICK_TOPIC} messages"
+        raise UserError(f"{log.path}: no complete ticks in this log ({how}); nothing to use")
+    return log

@@ -13,7 +13,7 @@ from furuta_rt.errors import UserError
 from furuta_rt.io.csv import read_csv, write_csv
 from furuta_rt.io.mapping import CsvMapping, load_mapping, read_mapped_csv
 from furuta_rt.io.mcap_log import write_recording_mcap
-from furuta_rt.io.mcap_read import is_mcap, log_to_recording, read_log
+from furuta_rt.io.mcap_read import is_mcap, log_to_recording, read_log, require_ticks
 from furuta_rt.recording import Recording
 
 
@@ -23,7 +23,7 @@ def read_recording(path: str | Path, mapping: CsvMapping | str | None = None, ri
     ``rec.meta["warnings"]``."""
     p = Path(path)
     if is_mcap(p):
-        log = read_log(p, timing=False)
+        log = require_ticks(read_log(p, timing=False))
         rec = log_to_recording(log)
         rec.meta["warnings"] = list(log.warnings)
         return rec

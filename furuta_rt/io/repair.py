@@ -132,6 +132,9 @@ def repair_log(path: str | Path, output: str | Path | None = None, *, backup: bo
             else:
                 copier.record(rec)
         writer.finish()
+    if copier.messages == 0 and not complete:
+        dst.unlink(missing_ok=True)
+        raise UserError(f"{src}: no complete chunk in this MCAP file (cut before its first chunk was written); nothing to repair")
     if output is None:
         if backup:
             os.replace(src, src.with_name(src.name + ".bak"))

@@ -18,7 +18,7 @@ import numpy as np
 from furuta_rt.config import CompMode, RigConfig
 from furuta_rt.control.controller import Controller, Measurement
 from furuta_rt.errors import UserError
-from furuta_rt.io.mcap_read import LogData
+from furuta_rt.io.mcap_read import LogData, require_ticks
 
 
 @dataclass
@@ -74,9 +74,7 @@ def replay_log(
 ) -> ReplayResult:
     """Re-run the controller over ``log``'s ticks. Defaults: the log's rig, mode and gains.
     ``progress(done, total)`` is called every few thousand ticks."""
-    n = log.n_ticks
-    if n == 0:
-        raise UserError(f"{log.path}: no complete ticks to replay (was the run killed before its first chunk was written?)")
+    n = require_ticks(log).n_ticks
     the_rig = rig or log.rig
     if the_rig is None:
         raise UserError(f"{log.path}: the log carries no usable rig config; give one with --config")
