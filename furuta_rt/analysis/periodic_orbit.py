@@ -99,7 +99,7 @@ class SampledLoop:
         s, c = self.sim, self.ctrl
         return np.array(
             [s.theta, s.theta_dot, s.phi, s.phi_dot, s.y, s.y_dot, s.command, c.observer.phi, c.observer.phi_dot]
-            + list(c._pending)  # the net torques still in the command pipeline (observer input)
+            + list(c.pending_torques)  # the net torques still in the command pipeline (observer input)
             + ([s.z] if self._lugre else [])
             + ([c.compensator.z] if self._comp_state else [])
         )
@@ -108,10 +108,9 @@ class SampledLoop:
         s, c = self.sim, self.ctrl
         s.theta, s.theta_dot, s.phi, s.phi_dot, s.y, s.y_dot, s.command = (float(v) for v in x[:7])
         c.observer.phi, c.observer.phi_dot = float(x[7]), float(x[8])
-        k = 9
-        for i in range(len(c._pending)):
-            c._pending[i] = float(x[k])
-            k += 1
+        n_pending = len(c.pending_torques)
+        c.set_pending_torques(x[9 : 9 + n_pending])
+        k = 9 + n_pending
         if self._lugre:
             s.z = float(x[k])
             k += 1

@@ -112,6 +112,17 @@ class Controller:
     def gains(self) -> tuple[float, float, float, float]:
         return self.l1, self.l2, self.l3, self.l4
 
+    @property
+    def pending_torques(self) -> tuple[float, ...]:
+        """Net torques issued but not yet acting on the arm (the observer's input pipeline), oldest first."""
+        return tuple(self._pending)
+
+    def set_pending_torques(self, torques: list[float] | tuple[float, ...]) -> None:
+        if len(torques) != len(self._pending):
+            raise ValueError(f"the command pipeline holds {len(self._pending)} torques, got {len(torques)}")
+        for i, value in enumerate(torques):
+            self._pending[i] = float(value)
+
     def reset(self, phi: float = 0.0) -> None:
         """Forget history (used when arming and after a device reset)."""
         self.observer.reset(phi, 0.0)

@@ -40,14 +40,15 @@ def _start_simulator(model: RigModel, prep: Prepared, fine: States, k: int, rate
     if model.bessel is not None:  # the analog filter's own state: the measured θ_f, θ̇_f (lightly smoothed)
         sim.y = float(fine.smooth(prep.theta_f)[k])
         sim.y_dot = float(fine.smooth(prep.theta_dot_f)[k]) if prep.theta_dot_f is not None else float(fine.theta_dot[k])
-    line = sim._delay_line  # the actuator's transport delay: fill with the commands already in flight
-    if line:
+    n = len(sim.commands_in_flight)  # the actuator's transport delay: fill with the commands already in flight
+    if n:
         D = round(prep.command_lag / prep.dt)
-        n = len(line)
+        queued = []
         for i in range(n):
             t_sub = -(n - i) * sim.h  # time before t_k of this queued substep command
             j = k + int(np.floor(t_sub / prep.dt)) - D
-            line[i] = float(prep.u[max(j, 0)])
+            queued.append(float(prep.u[max(j, 0)]))
+        sim.set_commands_in_flight(queued)
     return sim
 
 

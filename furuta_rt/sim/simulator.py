@@ -97,6 +97,18 @@ class Simulator:
     def energy(self) -> float:
         return self.model.plant.energy(self.theta, self.theta_dot, self.phi_dot)
 
+    @property
+    def commands_in_flight(self) -> tuple[float, ...]:
+        """The substep commands queued in the actuator's transport delay, oldest first."""
+        return tuple(self._delay_line)
+
+    def set_commands_in_flight(self, commands: list[float] | tuple[float, ...]) -> None:
+        """Fill the actuator's delay line (e.g. from recorded commands when starting mid-recording)."""
+        if len(commands) != len(self._delay_line):
+            raise ValueError(f"the delay line holds {len(self._delay_line)} substep commands, got {len(commands)}")
+        self._delay_line.clear()
+        self._delay_line.extend(float(c) for c in commands)
+
     def set_command(self, command: float) -> None:
         """The actuator command (N m or V) from now on (the actuator's own delay still applies)."""
         self.command = float(command)
