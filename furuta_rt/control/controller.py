@@ -29,16 +29,7 @@ from furuta_rt.control.design import (
 )
 from furuta_rt.control.observer import ArmObserver, ArmObserverDesign
 from furuta_rt.model.plant import FurutaPlant
-
-
-@dataclass(slots=True)
-class Measurement:
-    """One tick's measurement in SI: θ_f and θ̇_f from the analog path, φ from the encoder."""
-
-    t: float
-    theta: float
-    theta_dot: float
-    phi: float
+from furuta_rt.model.sensors import Measurement
 
 
 @dataclass(slots=True)

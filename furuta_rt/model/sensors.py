@@ -18,6 +18,16 @@ import numpy as np
 BESSEL2_CUTOFF_FACTOR = 1.3617
 
 
+@dataclass(slots=True)
+class Measurement:
+    """One tick's measurement in SI: θ_f and θ̇_f from the analog path, φ from the encoder."""
+
+    t: float
+    theta: float
+    theta_dot: float
+    phi: float
+
+
 @dataclass(frozen=True, slots=True)
 class BesselPath:
     """Second-order Bessel low-pass with −3 dB at ``cutoff`` rad/s, and its derivative channel."""

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from furuta_rt.control.controller import Measurement
 from furuta_rt.model.friction import Coulomb, CoulombStiction
 from furuta_rt.model.rig import RigModel
+from furuta_rt.model.sensors import Measurement
 
 
 @dataclass(slots=True)
