@@ -8,8 +8,6 @@ beyond eq. 4 (``[effects]``, see furuta_rt.model.effects). Shipped rigs live in 
 from __future__ import annotations
 
 import math
-import tomllib
-from importlib import resources
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -18,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from furuta_rt.errors import UserError
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.parameters import G, LumpedParameters
+from furuta_rt.tomlfile import read_toml
 
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
@@ -233,27 +232,6 @@ def load_rig(path: str | Path | None = None) -> RigConfig:
 
     Raises UserError with a one-line message naming the file, key and reason.
     """
-    if path is None:
-        path = "thesis"
-    text_path = str(path)
-    if text_path in SHIPPED_RIGS:
-        text = resources.files("furuta_rt.rigs").joinpath(f"{text_path}.toml").read_text()
-        source = f"shipped rig '{text_path}'"
-    else:
-        p = Path(text_path)
-        if not p.exists():
-            raise UserError(
-                f"config file {p} does not exist; give a TOML rig file or one of: {', '.join(SHIPPED_RIGS)}"
-            )
-        if p.is_dir():
-            raise UserError(f"config {p} is a directory; give a TOML rig file")
-        try:
-            text = p.read_text()
-        except (OSError, UnicodeDecodeError) as err:
-            raise UserError(f"cannot read config file {p}: {err}") from None
-        source = str(p)
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise UserError(f"{source}: not valid TOML: {err}") from None
+    name = "thesis" if path is None else path
+    data, source = read_toml(name, kind="config file", package="furuta_rt.rigs", shipped=SHIPPED_RIGS)
     return rig_from_dict(data, source)

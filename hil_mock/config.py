@@ -34,7 +34,6 @@ one line naming the key and the fix.
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -43,6 +42,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from furuta_rt.config import RigConfig, load_rig
 from furuta_rt.errors import UserError
 from furuta_rt.model.effects import Effects, effects_from_assignments
+from furuta_rt.tomlfile import read_toml
 from hil_mock.faults import FaultEvent, parse_fault
 
 MAX_RATE_HZ = 10_000
@@ -127,14 +127,7 @@ def config_from_dict(data: dict[str, Any], source: str = "mock config", base_dir
 def load_mock_config(path: str | Path) -> MockConfig:
     """Read a mock TOML file. Raises UserError (one line) on any problem."""
     p = Path(path)
-    if not p.is_file():
-        raise UserError(f"mock config {p} does not exist or is not a file; give a TOML file (see hil_mock/config.py)")
-    try:
-        data = tomllib.loads(p.read_text())
-    except (OSError, UnicodeDecodeError) as err:
-        raise UserError(f"cannot read mock config {p}: {err}") from None
-    except tomllib.TOMLDecodeError as err:
-        raise UserError(f"{p}: not valid TOML: {err}") from None
+    data, _ = read_toml(p, kind="mock config")
     return config_from_dict(data, str(p), p.parent)
 
 

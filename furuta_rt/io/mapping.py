@@ -29,6 +29,7 @@ from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
 from furuta_rt.model.actuator import DCMotor
 from furuta_rt.recording import Recording
+from furuta_rt.tomlfile import read_toml
 
 REST_BEFORE = 0.05  # s the arm must have been still before a moved input change
 
@@ -116,24 +117,10 @@ def _parse_value(text: str) -> Any:
 def load_mapping(name_or_path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> CsvMapping:
     """A shipped mapping by name (``macstepien``) or a TOML file, with ``FIELD.KEY=VALUE`` overrides
     (e.g. ``u.scale=10``, ``rows.resample_hz=1000``, ``theta.source=angle``)."""
-    text_name = str(name_or_path)
-    if text_name in SHIPPED_MAPPINGS:
-        text = resources.files("furuta_rt.io.mappings").joinpath(f"{text_name}.toml").read_text()
-        source = f"shipped mapping '{text_name}'"
-    else:
-        p = Path(text_name)
-        if not p.is_file():
-            raise UserError(
-                f"mapping {text_name!r} is neither a shipped mapping ({', '.join(SHIPPED_MAPPINGS)}) nor a TOML file"
-            )
-        try:
-            text, source = p.read_text(), str(p)
-        except (OSError, UnicodeDecodeError) as err:
-            raise UserError(f"cannot read mapping {p}: {err}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise UserError(f"{source}: not valid TOML: {err}") from None
+    if str(name_or_path) not in SHIPPED_MAPPINGS and not Path(name_or_path).exists():
+        shipped = ", ".join(SHIPPED_MAPPINGS)
+        raise UserError(f"mapping {str(name_or_path)!r} is neither a shipped mapping ({shipped}) nor a TOML file")
+    data, source = read_toml(name_or_path, kind="mapping", package="furuta_rt.io.mappings", shipped=SHIPPED_MAPPINGS)
     for item in overrides:
         key, sep, value = item.partition("=")
         parts = key.strip().split(".")

@@ -1,0 +1,40 @@
+"""Reading the project's TOML files (rigs, CSV mappings, mock configs): by shipped name or by path,
+every problem a one-line UserError naming the file and the fix."""
+
+from __future__ import annotations
+
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from furuta_rt.errors import UserError
+
+
+def read_toml(
+    name_or_path: str | Path, *, kind: str, package: str | None = None, shipped: tuple[str, ...] = ()
+) -> tuple[dict[str, Any], str]:
+    """(data, source) of a shipped TOML ``<name>.toml`` in ``package`` or of a TOML file.
+
+    ``kind`` names the file in messages ("config file", "mapping", "mock config").
+    """
+    text_name = str(name_or_path)
+    if package is not None and text_name in shipped:
+        text = resources.files(package).joinpath(f"{text_name}.toml").read_text()
+        source = f"shipped {kind} '{text_name}'"
+    else:
+        p = Path(text_name)
+        hint = f"give a TOML file or a shipped {kind}: {', '.join(shipped)}" if shipped else "give a TOML file"
+        if not p.exists():
+            raise UserError(f"{kind} {p} does not exist; {hint}")
+        if not p.is_file():
+            raise UserError(f"{kind} {p} is not a file; {hint}")
+        try:
+            text = p.read_text()
+        except (OSError, UnicodeDecodeError) as err:
+            raise UserError(f"cannot read {kind} {p}: {getattr(err, 'strerror', None) or err}") from None
+        source = str(p)
+    try:
+        return tomllib.loads(text), source
+    except tomllib.TOMLDecodeError as err:
+        raise UserError(f"{source}: not valid TOML: {err}") from None
