@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,6 +88,9 @@ class Simulator:
             self._fa1, self._fa0 = model.bessel.coefficients()
         else:
             self._fa1 = self._fa0 = 0.0
+        self._rhs = self._make_rhs()
+        self._shaped_for = math.nan  # the command whose actuator torque terms are in _shaped
+        self._shaped = (0.0, 0.0)
 
     # ------------------------------------------------------------------ state
     @property
@@ -114,30 +118,34 @@ class Simulator:
         self.command = float(command)
 
     # ------------------------------------------------------------ dynamics
-    def _rhs(
-        self, th: float, thd: float, ph: float, phd: float, y: float, yd: float, tau0: float, damp: float, F: float
-    ) -> tuple[float, float, float, float]:
-        """(θ̈, φ̈, ÿ) and nothing else: the kinematic derivatives are the velocities themselves."""
+    def _make_rhs(self) -> Callable[..., tuple[float, float, float, float]]:
+        """The smooth dynamics as a closure over the model's constants (the hot path: 4 calls a substep)."""
         a, b, c, e = self._alpha, self._beta, self._gamma, self._eps
-        s = math.sin(th)
-        co = math.cos(th)
-        tau_arm = tau0 - (damp + self._fv_arm) * phd + F
-        if self._k:
-            tau_arm -= self._k * (ph - self._phi0)
-        if self._smooth_dry is not None:
-            tau_arm += self._smooth_dry.torque(phd)
-        tau_p = -self._bp * thd
-        if self._pend_dry is not None:
-            tau_p += self._pend_dry.torque(thd)
-        m12 = c * co
-        m22 = b + a * s * s
-        f1 = a * phd * phd * s * co + e * s + tau_p
-        f2 = c * thd * thd * s - 2.0 * a * thd * phd * s * co + tau_arm
-        det = a * m22 - m12 * m12
-        thdd = (m22 * f1 - m12 * f2) / det
-        phdd = (a * f2 - m12 * f1) / det
-        ydd = self._fa0 * (th + self.model.theta_offset - y) - self._fa1 * yd
-        return thdd, phdd, ydd, 0.0
+        fv_arm, k, phi0, bp = self._fv_arm, self._k, self._phi0, self._bp
+        smooth_dry, pend_dry = self._smooth_dry, self._pend_dry
+        fa0, fa1, offset = self._fa0, self._fa1, self.model.theta_offset
+        sin, cos = math.sin, math.cos
+
+        def rhs(
+            th: float, thd: float, ph: float, phd: float, y: float, yd: float, tau0: float, damp: float, F: float
+        ) -> tuple[float, float, float, float]:
+            """(θ̈, φ̈, ÿ, 0): eq. 4 solved for the accelerations, and the Bessel filter driven by θ."""
+            s = sin(th)
+            co = cos(th)
+            tau_arm = tau0 - (damp + fv_arm) * phd + F - k * (ph - phi0)
+            if smooth_dry is not None:
+                tau_arm += smooth_dry.torque(phd)
+            tau_p = -bp * thd
+            if pend_dry is not None:
+                tau_p += pend_dry.torque(thd)
+            m12 = c * co
+            m22 = b + a * s * s
+            f1 = a * phd * phd * s * co + e * s + tau_p
+            f2 = c * thd * thd * s - 2.0 * a * thd * phd * s * co + tau_arm
+            det = a * m22 - m12 * m12
+            return (m22 * f1 - m12 * f2) / det, (a * f2 - m12 * f1) / det, fa0 * (th + offset - y) - fa1 * yd, 0.0
+
+        return rhs
 
     def _rhs_stuck(self, th: float, thd: float, y: float, yd: float) -> tuple[float, float]:
         """Arm held by friction (φ̇ = φ̈ = 0): α θ̈ = ε sin θ + τ_pend (first row of eq. 4)."""
@@ -156,7 +164,10 @@ class Simulator:
 
     def _substep(self, command: float) -> None:
         h = self.h
-        tau0, damp = self.model.actuator.torque_terms(command)
+        if command != self._shaped_for:  # the shaped command changes at most once a tick (or per delayed substep)
+            self._shaped_for = command
+            self._shaped = self.model.actuator.torque_terms(command)
+        tau0, damp = self._shaped
         th, thd, ph, phd, y, yd = self.theta, self.theta_dot, self.phi, self.phi_dot, self.y, self.y_dot
 
         F = 0.0
