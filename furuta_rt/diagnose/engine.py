@@ -22,8 +22,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose import verify
+from furuta_rt.diagnose import stickslip, verify
 from furuta_rt.diagnose.decay import DecayFit, DecayResult, free_decay, is_free_decay
+from furuta_rt.diagnose.fitting import paired_t
 from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, Context
 from furuta_rt.diagnose.locate import Location, describe, locate
 from furuta_rt.diagnose.select import EquationModel, Evaluation, Spec, Thresholds
@@ -60,6 +61,7 @@ class Options:
     holdout: float = 0.3  # last fraction of the recording kept out of the fit for the prediction metric
     max_windows: int = 40
     closed_loop: bool = True
+    stick_windows: bool = True  # the stick–slip stage (breakaway torque, actuator timing from the sticks)
     substep_hz: float = 2000.0  # physics substeps of the verification simulations
     ambiguity_t: float = 3.0  # paired t on the blocks above which two look-alikes are told apart ...
     ambiguity_gain: float = 0.01  # ... when one also fits better by at least this (relative held-out error)
@@ -111,6 +113,7 @@ class Diagnosis:
     decay: dict | None = None  # the free-decay analysis, when the recording is one
     decay_result: DecayResult | None = field(default=None, repr=False)
     prediction: dict = field(default_factory=dict, repr=False)  # starts, horizon, train effects (for figures)
+    stick: stickslip.StickSlip | None = field(default=None, repr=False)  # the stick–slip windows, when there are sticks
 
     @property
     def names(self) -> list[str]:
@@ -135,6 +138,7 @@ class Diagnosis:
                 for e in self.effects
             ],
             "free_decay": self.decay,
+            "stick_windows": self.stick.as_json() if self.stick is not None else None,
             "fit_details": {k: v for k, v in self.fit.items() if k not in ("metric", "nominal", "augmented")},
             "closed_loop": self.closed_loop,
             "equations": {
@@ -188,12 +192,6 @@ def refit(em: EquationModel, spec: Spec) -> Evaluation:
     return final
 
 
-def _paired_t(a: np.ndarray, b: np.ndarray) -> float:
-    d = a - b
-    sd = float(np.std(d, ddof=1)) if len(d) > 1 else 0.0
-    return float(np.sum(d) / (np.sqrt(len(d)) * sd)) if sd > 0 else np.inf
-
-
 def check_lookalikes(
     ems: dict[str, EquationModel], res: dict[str, EquationResult], opts: Options
 ) -> tuple[list[dict], list[dict]]:
@@ -223,7 +221,7 @@ def check_lookalikes(
                 })
                 continue
             alt = ems[eq].evaluate_with(r.selected.spec.without(name), other)
-            t = _paired_t(alt.fit.cv_block, r.selected.fit.cv_block)
+            t = paired_t(alt.fit.cv_block, r.selected.fit.cv_block)
             plausible = CANDIDATES[other].plausible(alt.params[other], ems[eq].ctx.rig)
             rel = (alt.cv - r.selected.cv) / r.selected.cv
             # told apart: the alternative is clearly worse (by ≥ 1 % and consistently over the blocks, or by ≥ 10 %)
@@ -333,6 +331,10 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
             gain = (without.cv - ev.cv) / without.cv if without.cv else 0.0
             found.append(Found(name, eq, ev.params[name], ev.se.get(name, {}), float(ev.t_stat.get(name, 0.0)), gain))
     ambiguities, lookalikes = check_lookalikes(ems, res, opts)
+    stick = _stick_windows(ctx, found, ems, res, opts) if opts.stick_windows else None
+    if stick is not None:
+        ambiguities += stick.ambiguities
+        lookalikes += stick.lookalikes
     decay = free_decay(prep, rig) if is_free_decay(prep) else None
     if decay is not None:
         found, ambiguities = _use_decay(decay, found, ambiguities, lookalikes)
@@ -341,14 +343,40 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     except ValueError as err:  # e.g. a combination the effects vocabulary forbids
         notes.append(f"the found effects are not a consistent set ({err}); reported as found, not simulated")
     located = "; ".join(describe(r.location, list(r.selected.spec.effects)) for r in res.values())
+    if stick is not None:
+        located += "; " + stickslip.describe(stick, {f.name: f.params for f in found})
     prediction: dict = {}
-    fit_summary = _prediction_metric(ctx, ems, res, rig, opts, notes, prediction, decay is not None)
+    fit_summary = _prediction_metric(ctx, ems, res, rig, opts, notes, prediction, decay is not None, stick)
     closed = _closed_loop(rec, rig, found, opts, notes) if opts.closed_loop else None
     return Diagnosis(
         effects=found, fit=fit_summary, located=located, ambiguities=ambiguities, lookalikes=lookalikes,
         equations=res, closed_loop=closed, notes=notes, seconds=time.perf_counter() - t0, rig=rig.name, context=ctx,
         models=ems, prediction=prediction, decay=decay.as_json() if decay is not None else None, decay_result=decay,
+        stick=stick,
     )
+
+
+def _stick_windows(ctx: Context, found: list[Found], ems: dict[str, EquationModel], res: dict[str, EquationResult],
+                   opts: Options) -> stickslip.StickSlip | None:
+    """The stick–slip stage (furuta_rt.diagnose.stickslip): with Coulomb friction found, the arm's sticks and
+    breakaways decide on a breakaway torque above the sliding level and time the actuator."""
+    if not any(f.name == "arm_coulomb" for f in found):
+        return None
+    em, selected = ems[ARM], res[ARM].selected
+
+    def delay_support(delay: float) -> float | None:
+        if em.n_rows < 20 * opts.thresholds.n_blocks or not selected.cv:
+            return None
+        ev = em.evaluate(selected.spec.with_effect("input_delay").with_value("delay", delay))
+        return (selected.cv - ev.cv) / selected.cv
+
+    stick = stickslip.assess(ctx.rig, {f.name: f.params for f in found}, ctx.prep, ctx.fine, opts.thresholds,
+                             delay_support)
+    if stick is not None:
+        for name, params in stick.added.items():
+            f = stick.fits[name]
+            found.append(Found(name, ARM, params, {f.param: f.se}, f.t, f.gain, "stick windows"))
+    return stick
 
 
 PENDULUM_FRICTION = ("pendulum_viscous", "pendulum_coulomb")
@@ -385,7 +413,8 @@ def _use_decay(
 
 
 def _prediction_metric(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResult], rig: RigConfig,
-                       opts: Options, notes: list[str], keep: dict, decay: bool = False) -> dict:
+                       opts: Options, notes: list[str], keep: dict, decay: bool = False,
+                       stick: stickslip.StickSlip | None = None) -> dict:
     prep = ctx.prep
     horizon = max(5, round(opts.horizon / prep.dt))
     starts = _windows(prep, opts.holdout, horizon, opts.max_windows)
@@ -402,6 +431,12 @@ def _prediction_metric(ctx: Context, ems: dict[str, EquationModel], res: dict[st
             notes.append(f"{eq} equation: too little data before the held-out part; the prediction uses all-data parameters")
         ev = refit(train, r.selected.spec)
         train_found += [Found(n, eq, ev.params[n], {}, 0.0, 0.0) for n in ev.spec.effects]
+    if stick is not None and stick.added:  # the stick-window effects from the sticks before the held-out part
+        values = stickslip.values_before(stick, int(np.searchsorted(prep.t, split_t)))
+        if values is None:
+            values = stick.added
+            notes.append("too few sticks before the held-out part; the prediction uses all-data stick-window parameters")
+        train_found += [Found(n, ARM, p, {}, 0.0, 0.0) for n, p in values.items()]
     if decay:  # the pivot friction from the cycles before the held-out part
         part = free_decay(prep, rig, stop_time=float(split_t))
         if part is not None:

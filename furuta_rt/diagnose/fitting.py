@@ -106,7 +106,14 @@ def fit(stats: Stats) -> Fit:
     )
 
 
-def _vertex(x: np.ndarray, y: np.ndarray, i: int) -> float:
+def paired_t(a: np.ndarray, b: np.ndarray) -> float:
+    """Paired t statistic of a − b over blocks (inf when the differences do not vary)."""
+    d = a - b
+    sd = float(np.std(d, ddof=1)) if len(d) > 1 else 0.0
+    return float(np.sum(d) / (np.sqrt(len(d)) * sd)) if sd > 0 else np.inf
+
+
+def vertex(x: np.ndarray, y: np.ndarray, i: int) -> float:
     """Minimum of the parabola through the grid points i−1, i, i+1 (the grid point itself at an end)."""
     if i <= 0 or i >= len(x) - 1:
         return float(x[i])
@@ -141,8 +148,8 @@ def fit_profiled(stats_of: Callable[[float], Stats], grid: np.ndarray) -> tuple[
     full = np.array([fit(st).sse for st in stats])
     train = np.array([_train_sse(st) for st in stats])  # (grid, B)
     B = train.shape[1]
-    best = _vertex(grid, full, int(np.argmin(full)))
-    fold_best = np.array([_vertex(grid, train[:, b], int(np.argmin(train[:, b]))) for b in range(B)])
+    best = vertex(grid, full, int(np.argmin(full)))
+    fold_best = np.array([vertex(grid, train[:, b], int(np.argmin(train[:, b]))) for b in range(B)])
     cache: dict[float, Fit] = {}
 
     def fit_at(v: float) -> Fit:

@@ -89,7 +89,7 @@ class EquationModel:
     @property
     def candidates(self) -> list[Candidate]:
         """This equation's candidates (the command path's only when there is a command)."""
-        commanded = bool(np.any(self.ctx.prep.u[self.ctx.prep.valid] != 0))
+        commanded = self.ctx.prep.commanded
         return [
             c for c in CANDIDATES.values()
             if c.equation == self.equation and (commanded or not c.name.startswith("input_"))

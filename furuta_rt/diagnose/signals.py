@@ -148,6 +148,11 @@ class Prepared:
     def n(self) -> int:
         return len(self.t)
 
+    @property
+    def commanded(self) -> bool:
+        """Whether the recording has any nonzero command (else the command path cannot be assessed)."""
+        return bool(np.any(self.u[self.valid] != 0))
+
     def moves(self, x: np.ndarray) -> bool:
         """Whether an angle travels at least MIN_TRAVEL_COUNTS encoder counts over the recording."""
         return float(np.ptp(x[self.valid])) >= MIN_TRAVEL_COUNTS * self.phi_lsb

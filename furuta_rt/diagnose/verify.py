@@ -33,9 +33,12 @@ def quiet(rig: RigConfig) -> RigConfig:
     return rig.model_copy(update={"sensors": rig.sensors.model_copy(update={"theta_noise": 0.0, "theta_dot_noise": 0.0})})
 
 
-def _start_simulator(model: RigModel, prep: Prepared, fine: States, k: int, rate: float, substep_hz: float) -> Simulator:
-    """A Simulator in the reconstructed state of sample k, its filter and delay line primed from the data."""
-    x0 = (float(fine.theta[k] - model.theta_offset), float(fine.theta_dot[k]), float(prep.phi[k]), float(fine.phi_dot[k]))
+def start_simulator(model: RigModel, prep: Prepared, fine: States, k: int, rate: float, substep_hz: float,
+                    at_rest: bool = False) -> Simulator:
+    """A Simulator in the reconstructed state of sample k, its filter and delay line primed from the data;
+    ``at_rest``: the arm starts at rest (φ̇ = 0, so a friction law with a stick limit holds it)."""
+    phi_dot = 0.0 if at_rest else float(fine.phi_dot[k])
+    x0 = (float(fine.theta[k] - model.theta_offset), float(fine.theta_dot[k]), float(prep.phi[k]), phi_dot)
     sim = Simulator(model, rate, substep_hz, seed=0, x0=x0)
     if model.bessel is not None:  # the analog filter's own state: the measured θ_f, θ̇_f (lightly smoothed)
         sim.y = float(fine.smooth(prep.theta_f)[k])
@@ -73,7 +76,7 @@ def window_starts(prep: Prepared, start: int, stop: int, horizon: int, spacing: 
 def simulate_window(model: RigModel, prep: Prepared, fine: States, k: int, horizon: int,
                     substep_hz: float = 2000.0) -> tuple[np.ndarray, np.ndarray]:
     """(θ_f, φ) predicted for ticks k+1 … k+horizon, open loop with the recorded commands."""
-    sim = _start_simulator(model, prep, fine, k, 1.0 / prep.dt, substep_hz)
+    sim = start_simulator(model, prep, fine, k, 1.0 / prep.dt, substep_hz)
     D = round(prep.command_lag / prep.dt)
     th = np.empty(horizon)
     ph = np.empty(horizon)

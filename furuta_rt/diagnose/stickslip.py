@@ -1,0 +1,335 @@
+"""Stick–slip windows: where the arm sticks, eq. 4 only bounds the friction; the evidence is *when it breaks away*.
+
+A run of at least STICK_SECONDS at one encoder count is the arm at rest (moving, it would cover less than
+one count in that time). The regression of eq. 4 leaves those stretches out: while the arm is stuck its
+friction torque is whatever holds it (eq. 2, set-valued, |held torque| ≤ Fs), so the residual carries no
+information there. The data's *timing* does: the arm stays put until the torque it must hold first exceeds
+the breakaway torque Fs, then slides against Fc. The held torque is practically the command (the
+pendulum's share γ cos θ θ̈ is ~1e-4 N m near upright), and the command varies from tick to tick, so the
+instant of breakaway is sharp: these windows measure the breakaway torque, and they time the actuator
+(a transport delay moves every breakaway).
+
+Each window starts inside a stick (φ̇ = 0, φ at the measured count), WINDOW_LEAD before it ends, and runs
+WINDOW_TAIL past it. The pendulum is teacher-forced: θ and θ̇ are reset to the reconstructed ones every
+tick (upright, the pendulum is unstable, and left alone it would leave the data within tenths of a
+second; its effect on the arm is small, but it must be the data's). The arm is simulated by
+furuta_rt.sim.simulator.Simulator with the recorded commands — eq. 4, the set-valued friction law and the
+actuator chain of the shared model. A window's error is the squared arm-angle error beyond one encoder
+count (motion within a count is invisible to the encoder), summed over its ticks.
+
+Parameters are chosen on these windows the way the regression chooses nonlinear ones
+(furuta_rt.diagnose.fitting): on a grid, with blocked cross-validation over windows in time order (each
+block's error at the value best on the other blocks), and accepted by the same rules (held-out gain,
+BIC penalty on the number of windows, significance of the departure from the model without it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from furuta_rt.config import RigConfig
+from furuta_rt.diagnose.fitting import paired_t, vertex
+from furuta_rt.diagnose.select import Thresholds
+from furuta_rt.diagnose.signals import Prepared, States
+from furuta_rt.diagnose.verify import quiet, start_simulator
+from furuta_rt.model.effects import Effects
+from furuta_rt.model.rig import RigModel
+
+STICK_SECONDS = 0.2  # a run this long at one encoder count is a stick
+SETTLE_SECONDS = 0.02  # after a run starts: the arm has come to rest
+WINDOW_LEAD = 0.3  # s before the count changes (or from the stick's start + SETTLE, if later)
+WINDOW_TAIL = 0.15  # s after the count changes
+MAX_WINDOWS = 20  # evenly spread over the recording (each costs a simulation per parameter value)
+MIN_WINDOWS = 8
+SUBSTEP_HZ = 2000.0  # the delay line's resolution is one substep
+
+# grids: breakaway torque as a multiple of the sliding level; transport delay in s
+STICTION_RATIOS = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)
+DELAYS = (0.0, 0.001, 0.002, 0.003, 0.004, 0.006, 0.008, 0.011)
+
+
+@dataclass(frozen=True)
+class Window:
+    start: int  # sample the simulation starts from (inside the stick)
+    horizon: int  # ticks simulated
+    stick_end: int  # first sample at a new count
+
+
+def stick_runs(prep: Prepared) -> list[tuple[int, int]]:
+    """[start, stop) of the runs of ≥ STICK_SECONDS at one encoder count, inside the valid part with room for a tail."""
+    cnt = np.round(prep.phi / prep.phi_lsb).astype(np.int64)
+    start = np.flatnonzero(np.concatenate([[True], np.diff(cnt) != 0]))
+    stop = np.concatenate([start[1:], [len(cnt)]])
+    need = round(STICK_SECONDS / prep.dt)
+    tail = round(WINDOW_TAIL / prep.dt)
+    valid = np.flatnonzero(prep.valid)
+    lo, hi = valid[0], valid[-1] - tail - 1
+    return [(int(a), int(b)) for a, b in zip(start, stop, strict=True) if b - a >= need and a >= lo and b <= hi]
+
+
+def windows(prep: Prepared) -> list[Window]:
+    """One window per stick (at most MAX_WINDOWS, evenly spread over the recording)."""
+    lead, settle, tail = (round(s / prep.dt) for s in (WINDOW_LEAD, SETTLE_SECONDS, WINDOW_TAIL))
+    out = [Window(max(a + settle, b - lead), b - max(a + settle, b - lead) + tail, b) for a, b in stick_runs(prep)]
+    if len(out) > MAX_WINDOWS:
+        out = [out[i] for i in np.linspace(0, len(out) - 1, MAX_WINDOWS).round().astype(int)]
+    return out
+
+
+def simulate_arm(model: RigModel, prep: Prepared, fine: States, w: Window, substep_hz: float = SUBSTEP_HZ) -> np.ndarray:
+    """φ over ticks w.start+1 … w.start+w.horizon: the arm simulated from rest, the pendulum teacher-forced."""
+    k = w.start
+    sim = start_simulator(model, prep, fine, k, 1.0 / prep.dt, substep_hz, at_rest=True)
+    D = round(prep.command_lag / prep.dt)
+    out = np.empty(w.horizon)
+    for j in range(w.horizon):
+        sim.set_command(float(prep.u[max(k + j - D, 0)]))
+        sim.advance(1)
+        out[j] = sim.phi
+        sim.theta = float(fine.theta[k + j + 1] - model.theta_offset)
+        sim.theta_dot = float(fine.theta_dot[k + j + 1])
+    return out
+
+
+def window_errors(rig: RigConfig, effects: Effects, prep: Prepared, fine: States, wins: list[Window],
+                  substep_hz: float = SUBSTEP_HZ) -> np.ndarray:
+    """Per window: Σ (|φ_sim − φ| − one count)₊² over its ticks (rad²)."""
+    model = RigModel.from_config(quiet(rig), effects)
+    out = np.empty(len(wins))
+    shifts = np.linspace(-0.5, 0.5, 11)[:, None] * prep.phi_lsb
+    for i, w in enumerate(wins):
+        e = simulate_arm(model, prep, fine, w, substep_hz) - prep.phi[w.start + 1 : w.start + 1 + w.horizon]
+        outside = np.maximum(np.abs(e[None, :] + shifts) - 0.5 * prep.phi_lsb, 0.0)
+        out[i] = float(np.min(np.sum(outside**2, axis=1)))
+    return out
+
+
+# ------------------------------------------------------------------------------------ profiling
+@dataclass
+class WindowFit:
+    """One effect's parameter chosen on the windows (grid, blocked CV), against the model without it."""
+
+    name: str
+    param: str
+    value: float  # optimum on all windows
+    null: float  # the value that means "absent" (Fs = Fc, delay = 0)
+    grid: np.ndarray
+    errors: np.ndarray  # (grid, windows)
+    fold_values: np.ndarray
+    cv_blocks: np.ndarray  # held-out error per block
+    base_blocks: np.ndarray  # error per block of the model without the effect
+    step: float  # local grid step at the optimum
+    support: float | None = None  # input_delay: held-out gain of the arm regression (sliding rows) at this delay
+
+    @property
+    def cv(self) -> float:
+        return float(self.cv_blocks.sum())
+
+    @property
+    def base(self) -> float:
+        return float(self.base_blocks.sum())
+
+    @property
+    def gain(self) -> float:
+        return (self.base - self.cv) / self.base if self.base > 0 else 0.0
+
+    @property
+    def se(self) -> float:
+        B = len(self.fold_values)
+        spread = float(np.sqrt((B - 1) / B * np.sum((self.fold_values - self.fold_values.mean()) ** 2))) if B > 1 else np.inf
+        return max(spread, 0.5 * self.step)
+
+    @property
+    def t(self) -> float:
+        return abs(self.value - self.null) / self.se
+
+    def accepted(self, th: Thresholds) -> bool:
+        """The regression's rules: held-out gain ≥ min_gain and above a BIC penalty on the number of windows; the
+        departure from the null value significant (t ≥ t_min, or t ≥ t_strong with a strong gain)."""
+        n = self.errors.shape[1]
+        penalty = np.log(max(n, 2)) * self.cv / n
+        significant = self.t >= th.t_min or (self.gain >= th.strong_gain and self.t >= th.t_strong)
+        supported = self.name != "input_delay" or (self.support is not None and self.support >= th.min_gain)
+        return self.base > 0 and self.gain >= th.min_gain and self.base - self.cv > penalty and significant and supported
+
+    def value_on(self, mask: np.ndarray) -> float:
+        """The optimum on the windows in ``mask`` only (e.g. those before a held-out part)."""
+        total = self.errors[:, mask].sum(1)
+        return vertex(self.grid, total, int(np.argmin(total)))
+
+    def as_json(self) -> dict:
+        return {"name": self.name, self.param: self.value, "se": self.se, "t": self.t, "cv_gain": self.gain,
+                "regression_support": self.support,
+                "fold_values": self.fold_values.tolist(), "grid": self.grid.tolist(),
+                "error_curve": self.errors.sum(1).tolist()}
+
+
+def blocks_of(n: int, count: int) -> list[np.ndarray]:
+    return [b for b in np.array_split(np.arange(n), min(count, n)) if len(b)]
+
+
+def profile(name: str, param: str, errors_of: Callable[[float], np.ndarray], grid: list[float], null: float,
+            base: np.ndarray, n_blocks: int) -> WindowFit:
+    """Errors on the grid (refined by the two midpoints beside the coarse optimum), the optimum by a parabola
+    through the error curve, and each block's held-out error at the value best on the other blocks."""
+    values = list(grid)
+    rows = [base if v == null else errors_of(v) for v in values]
+    i = int(np.argmin([r.sum() for r in rows]))
+    for j in (i - 1, i + 1):
+        if 0 <= j < len(values):
+            mid = 0.5 * (values[i] + values[j])
+            values.append(mid)
+            rows.append(errors_of(mid))
+    order = np.argsort(values)
+    x = np.asarray(values)[order]
+    E = np.asarray(rows)[order]
+    blocks = blocks_of(E.shape[1], n_blocks)
+    total = E.sum(1)
+    best_i = int(np.argmin(total))
+    value = vertex(x, total, best_i)
+    folds, cv = np.empty(len(blocks)), np.empty(len(blocks))
+    for b, idx in enumerate(blocks):
+        train = total - E[:, idx].sum(1)
+        g = int(np.argmin(train))
+        folds[b] = vertex(x, train, g)
+        cv[b] = E[g, idx].sum()
+    step = float(np.min(np.abs(np.diff(x)[max(best_i - 1, 0) : best_i + 1]))) if len(x) > 1 else 0.0
+    return WindowFit(name, param, value, null, x, E, folds, cv, np.array([base[idx].sum() for idx in blocks]), step)
+
+
+# ------------------------------------------------------------------------------------ the stage
+@dataclass
+class StickSlip:
+    """What the stick windows say: the effects they add, look-alikes, and the numbers behind them."""
+
+    windows: list[Window]
+    added: dict[str, dict[str, float]] = field(default_factory=dict)
+    fits: dict[str, WindowFit] = field(default_factory=dict)  # accepted
+    tried: list[dict] = field(default_factory=list)
+    ambiguities: list[dict] = field(default_factory=list)
+    lookalikes: list[dict] = field(default_factory=list)
+
+    def as_json(self) -> dict:
+        return {"windows": len(self.windows), "added": self.added, "tried": self.tried}
+
+
+EXPERIMENT = (
+    "a slow ramp of the command with the arm at rest (the breakaway torque is where it starts to move, "
+    "independent of timing) or a square-wave command (a transport delay shifts every start by the same time)"
+)
+
+
+GRIDS: dict[str, tuple[str, tuple[float, ...]]] = {"arm_stiction": ("Fs", STICTION_RATIOS), "input_delay": ("delay", DELAYS)}
+
+
+def _profile(name: str, current: dict[str, dict[str, float]], base: np.ndarray,
+             errors: Callable[[dict[str, dict[str, float]]], np.ndarray], n_blocks: int,
+             support: Callable[[float], float | None]) -> WindowFit:
+    """``name`` added to the model ``current``, its parameter profiled on the windows (Fs from the sliding level up)."""
+    param, grid = GRIDS[name]
+    null = current["arm_coulomb"]["Fc"] if name == "arm_stiction" else 0.0
+    values = [null * r for r in grid] if name == "arm_stiction" else list(grid)
+    fit = profile(name, param, lambda v: errors({**current, name: {param: v}}), values, null, base, n_blocks)
+    if name == "input_delay":
+        fit.support = support(fit.value)
+    return fit
+
+
+def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, fine: States, th: Thresholds,
+           delay_support: Callable[[float], float | None], wins: list[Window] | None = None) -> StickSlip | None:
+    """Forward selection of arm_stiction (on top of Coulomb friction) and input_delay (when none was found) on the
+    stick windows, starting from the effects ``found``. None when there are too few sticks.
+
+    ``delay_support(d)``: the arm regression's held-out gain with a delay d (None when the arm equation has too
+    few sliding rows). A delay must also pay on the sliding rows: the breakaways alone cannot always tell a late
+    breakaway (delay) from a high one (stiction), the sliding arm can."""
+    wins = windows(prep) if wins is None else wins
+    if len(wins) < MIN_WINDOWS or "arm_coulomb" not in found:
+        return None
+    out = StickSlip(wins)
+    current = dict(found)
+
+    def errors(eff: dict[str, dict[str, float]]) -> np.ndarray:
+        return window_errors(rig, Effects.model_validate(eff), prep, fine, wins)
+
+    base = errors(current)
+    first: dict[str, WindowFit] = {}
+    names = [n for n in GRIDS if n not in current and (prep.commanded or n != "input_delay")]
+    while names:
+        fits = {name: _profile(name, current, base, errors, th.n_blocks, delay_support) for name in names}
+        first = first or dict(fits)
+        ok = [f for f in fits.values() if f.accepted(th)]
+        best = max(ok, key=lambda f: f.gain) if ok else None
+        out.tried += [{"step": len(out.added), **f.as_json(), "accepted": f is best} for f in fits.values()]
+        if best is None:
+            break
+        current[best.name] = {best.param: best.value}
+        out.added[best.name] = {best.param: best.value}
+        out.fits[best.name] = best
+        base = errors(current)
+        # what paid on its own is tried on top, if its value there still lowers the error
+        names = [f.name for f in ok if f is not best
+                 and base.sum() - errors({**current, f.name: {f.param: f.value}}).sum() >= th.min_gain * base.sum()]
+    _lookalikes(out, first, th)
+    return out
+
+
+def values_before(out: StickSlip, stop: int) -> dict[str, dict[str, float]] | None:
+    """The stick-window effects' parameters chosen on the windows that end before sample ``stop`` only (None when
+    there are too few of them)."""
+    mask = np.array([w.start + w.horizon < stop for w in out.windows])
+    if mask.sum() < MIN_WINDOWS:
+        return None
+    return {name: {f.param: f.value_on(mask)} for name, f in out.fits.items()}
+
+
+def _lookalikes(out: StickSlip, first: dict[str, WindowFit], th: Thresholds, rel_apart: float = 0.01,
+                t_apart: float = 3.0) -> None:
+    """A breakaway torque and a transport delay both move the breakaways: when one was selected, the other in
+    its place (from the same starting model) is compared on the held-out blocks."""
+    if len(first) < 2 or len(out.added) != 1:
+        return
+    name = next(iter(out.added))
+    other = next(n for n in first if n != name)
+    a, b = first[name], first[other]
+    rel = (b.cv - a.cv) / a.base  # difference of the held-out gains over the model with neither
+    t = paired_t(b.cv_blocks, a.cv_blocks)
+    pair = [name, other]
+    if b.accepted(th) and not (rel >= rel_apart and (t >= t_apart or rel >= 10 * rel_apart)):
+        out.ambiguities.append({
+            "effects": pair, "reported": name, "alternative": {"name": other, "params": {b.param: b.value}},
+            "alternative_model": {other: {b.param: b.value}}, "cv_difference": rel, "paired_t": t,
+            "reason": f"on the stick windows {other} fits almost as well ({100 * rel:+.2f} % held-out error, paired t = {t:.1f})",
+            "experiment": EXPERIMENT,
+        })
+    else:
+        if b.accepted(th):
+            why = f"{other} in its place fits the breakaways worse ({100 * rel:+.1f} % held-out error, paired t = {t:.1f})"
+        elif b.support is not None and b.support < th.min_gain <= b.gain:
+            why = (f"{other} in its place ({b.param} = {b.value:.3g}) moves the breakaways too, but the sliding arm contradicts "
+                   f"it (arm regression held-out error {-100 * b.support:+.0f} %)")
+        else:
+            why = f"{other} in its place is not supported (held-out gain {100 * b.gain:.1f} %, t = {b.t:.1f})"
+        out.lookalikes.append({"effects": pair, "reported": name, "reason": why, "experiment": EXPERIMENT})
+
+
+def describe(out: StickSlip, found: dict[str, dict[str, float]]) -> str:
+    """One sentence: what the stick windows say."""
+    n = len(out.windows)
+    if not out.added:
+        return f"arm sticks: {n} sticks, their breakaways as the model predicts (no breakaway torque above Fc, no extra delay)"
+    parts = []
+    fc = found.get("arm_coulomb", {}).get("Fc")
+    if "arm_stiction" in out.fits:
+        f = out.fits["arm_stiction"]
+        above = f", above the sliding level Fc = {fc:.3g}" if fc else ""
+        parts.append(f"the arm stays stuck until it holds Fs = {f.value:.3g} N m{above} "
+                     f"(held-out error of the breakaways −{100 * f.gain:.0f} %)")
+    if "input_delay" in out.fits:
+        f = out.fits["input_delay"]
+        parts.append(f"every breakaway comes {1e3 * f.value:.1f} ms late: a transport delay "
+                     f"(held-out error −{100 * f.gain:.0f} %)")
+    return f"arm sticks ({n} windows): " + "; ".join(parts)
