@@ -24,8 +24,8 @@ import numpy as np
 from furuta_rt.config import RigConfig
 from furuta_rt.diagnose import stickslip, verify
 from furuta_rt.diagnose.decay import DecayFit, DecayResult, free_decay, is_free_decay
-from furuta_rt.diagnose.fitting import paired_t
-from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, Context
+from furuta_rt.diagnose.fitting import Stats, fit, paired_t
+from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, Context
 from furuta_rt.diagnose.locate import Location, describe, locate
 from furuta_rt.diagnose.select import EquationModel, Evaluation, Spec, Thresholds
 from furuta_rt.diagnose.signals import GaussianFilter, Prepared, prepare
@@ -194,10 +194,12 @@ def refit(em: EquationModel, spec: Spec) -> Evaluation:
 
 def check_lookalikes(
     ems: dict[str, EquationModel], res: dict[str, EquationResult], opts: Options
-) -> tuple[list[dict], list[dict]]:
-    """(ambiguities, look-alikes told apart) for the selected effects."""
+) -> tuple[list[dict], list[dict], dict[str, Evaluation]]:
+    """(ambiguities, look-alikes told apart, equations whose look-alike alternative the data favours) for the
+    selected effects."""
     ambiguous: list[dict] = []
     apart: list[dict] = []
+    swaps: dict[str, Evaluation] = {}
     selected = {n: eq for eq, r in res.items() for n in r.selected.spec.effects}
     for name, eq in selected.items():
         r = res[eq]
@@ -227,15 +229,29 @@ def check_lookalikes(
             # told apart: the alternative is clearly worse (by ≥ 1 % and consistently over the blocks, or by ≥ 10 %)
             apart_by_data = rel >= opts.ambiguity_gain and (t >= opts.ambiguity_t or rel >= 10 * opts.ambiguity_gain)
             significant = alt.t_stat.get(other, 0.0) >= opts.thresholds.t_min
-            if plausible and significant and not apart_by_data:
-                ambiguous.append({
+            sep = None
+            if pair == frozenset({"input_gain", "arm_inertia"}) and plausible and significant:
+                gain = (r.selected.params if name == "input_gain" else alt.params)["input_gain"]["gain"]
+                sep = gain_inertia_separation(ems[eq], r.selected, gain, name == "input_gain")
+            if sep is not None and sep["verdict"] in ("selected", "alternative"):
+                keep, drop = (name, other) if sep["verdict"] == "selected" else (other, name)
+                if keep == other:
+                    swaps[eq] = alt
+                apart.append({"effects": [keep, drop], "reported": keep, "separation": sep, "experiment": experiment,
+                              "reason": f"{keep} rather than {drop}: {sep['text']}"})
+            elif plausible and significant and not apart_by_data:
+                entry = {
                     "effects": [name, other], "reported": name,
                     "alternative": {"name": other, "params": alt.params[other]},
                     "alternative_model": alt.params,  # the whole equation's effects under the alternative
                     "cv_difference": rel, "paired_t": t,
                     "reason": f"the data fits {other} almost as well ({100 * rel:+.2f} % held-out error, paired t = {t:.1f})",
                     "experiment": experiment,
-                })
+                }
+                if sep is not None:
+                    entry["separation"] = sep
+                    entry["reason"] += f"; {sep['text']}: too close to tell"
+                ambiguous.append(entry)
             else:
                 if not plausible:
                     why = f"{other} in its place needs implausible values {alt.params[other]}"
@@ -244,7 +260,45 @@ def check_lookalikes(
                 else:
                     why = f"{other} in its place fits worse ({100 * rel:+.2f} % held-out error, paired t = {t:.1f})"
                 apart.append({"effects": [name, other], "reported": name, "reason": why, "experiment": experiment})
-    return ambiguous, apart
+    return ambiguous, apart, swaps
+
+
+def gain_inertia_separation(em: EquationModel, selected: Evaluation, gain: float, gain_model: bool) -> dict:
+    """Whether the arm equation tells an input gain g from an arm-inertia change, and which one it favours.
+
+    Divided by g, the gain model reads u = (M22/g) φ̈ + (P + F)/g with P = ID_arm at φ̈ = 0 (the pendulum's
+    reaction γ cos θ θ̈ and the velocity terms of eq. 4) and F the friction (refitted either way); the inertia
+    model reads u = (M22 + ΔJ) φ̈ + P + F. Only P's coefficient differs (1/g against 1). Neither effect enters
+    the pendulum equation (no u, no J there), so that equation cannot help. The test: the coefficient κ of an
+    extra column P in the selected model (``gain`` is the gain of whichever model has one; ``gain_model``: the
+    selected one does) is 0 if the selected model is right and 1 − g (selected gain) or 1 − 1/g (selected
+    inertia) if the other one is; κ's standard error (blocked jackknife) says which, if either, the data rejects.
+    """
+    ctx = em.ctx
+    X, _ = em.design(selected.spec)
+    P = ctx.arm_pendulum_part
+    y, Xp = em.target(selected.spec), np.column_stack([X, P])
+    if selected.spec.d_inertia:
+        w = ctx.arm_weight(selected.spec.d_inertia)
+        y, Xp = y * w, Xp * np.asarray(w)[:, None]
+    f = fit(Stats.of(y, Xp, em.blocks))
+    kappa, se = float(f.coef[-1]), max(float(f.se[-1]), 1e-12)
+    other = 1.0 - gain if gain_model else 1.0 - 1.0 / gain  # κ if the alternative is the truth
+    z_sel, z_alt = abs(kappa) / se, abs(kappa - other) / se
+    resolved = abs(other) >= SEPARATION_Z * se
+    verdict = ("selected" if z_alt >= SEPARATION_Z and z_sel < CONSISTENT_Z else
+               "alternative" if z_sel >= SEPARATION_Z and z_alt < CONSISTENT_Z else "neither") if resolved else "unresolved"
+    rows = em.row_mask
+    share = float(np.sqrt(np.mean(P[rows] ** 2)) / (np.sqrt(np.mean(ctx.command_torque(selected.spec.path)[rows] ** 2)) or 1.0))
+    text = (f"the term that tells them apart, the pendulum's reaction on the arm (rms {100 * share:.2f} % of the arm torque "
+            f"here; an input gain scales it, an inertia change does not), has coefficient κ = {kappa:+.3f} ± {se:.3f}; the "
+            f"reported model predicts 0, the alternative {other:+.3f}")
+    return {"kappa": kappa, "se": se, "predicted_alternative": other, "pendulum_share": share, "verdict": verdict,
+            "text": text}
+
+
+SEPARATION_Z = 4.0  # the two predictions of κ must be this many standard errors apart, and the rejected one this far off
+CONSISTENT_Z = 2.0  # ... and the favoured one within this many
 
 
 def _windows(prep, start_frac: float, horizon: int, max_windows: int) -> list[int]:
@@ -302,36 +356,30 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     ems: dict[str, EquationModel] = {}
     res: dict[str, EquationResult] = {}
     for eq in (ARM, PEND):
-        em = EquationModel(ctx, eq, opts.thresholds)
-        ems[eq] = em
-        nominal, selected, trace = em.select()
-        if selected.spec.effects:
-            selected = refit(em, selected.spec)
-        loc = locate(ctx, eq, em.target(Spec(eq)), em.row_mask)
-        res[eq] = EquationResult(eq, em.n_rows, nominal, selected, trace, loc)
-        if em.n_rows < 20 * opts.thresholds.n_blocks:
+        ems[eq], res[eq] = _select(ctx, eq, opts)
+        if ems[eq].n_rows < 20 * opts.thresholds.n_blocks:
             notes.append(
-                f"{eq} equation: only {em.n_rows} usable samples "
+                f"{eq} equation: only {ems[eq].n_rows} usable samples "
                 + ("(the arm hardly moves: arm-side effects cannot be assessed; excite the arm, e.g. an arm reference)"
                    if eq == ARM else "")
             )
-    found: list[Found] = []
-    for eq, r in res.items():
-        ev = r.selected
-        for name in ev.spec.effects:
-            kind = CANDIDATES[name].nonlinear
-            if kind is not None:
-                grid = ems[eq].grid(kind)
-                value = ev.spec.d_inertia if kind == "inertia" else getattr(ev.spec.path, kind)
-                step = float(np.median(np.diff(grid)))
-                if value is not None and (value <= grid[0] + step or value >= grid[-1] - step):
-                    notes.append(f"{name}: {ev.params[name]} is at the edge of the range searched; the data asks for "
-                                 "more than the library's range (treat it as a sign of other missing physics)")
-            without = ems[eq].evaluate(ev.spec.without(name))
-            gain = (without.cv - ev.cv) / without.cv if without.cv else 0.0
-            found.append(Found(name, eq, ev.params[name], ev.se.get(name, {}), float(ev.t_stat.get(name, 0.0)), gain))
-    ambiguities, lookalikes = check_lookalikes(ems, res, opts)
+    found = [f for eq in res for f in _found(ems[eq], res[eq], notes)]
     stick = _stick_windows(ctx, found, ems, res, opts) if opts.stick_windows else None
+    if stick is not None and "arm_stiction" in stick.added:
+        # with a breakaway torque above the sliding level the arm may also stick briefly at reversals, where its
+        # friction is the held torque, not ±Fc: the arm regression is redone without any short stay at one count
+        em, r = _select(ctx, ARM, opts, ctx.clear_of(ctx.stays(STICTION_STILL_TICKS)))
+        if "arm_coulomb" in r.selected.spec.effects and em.n_rows >= 20 * opts.thresholds.n_blocks:
+            ems[ARM], res[ARM] = em, r
+            kept = [f for f in found if f.source == "stick windows"]
+            found = [f for eq in res for f in _found(ems[eq], res[eq], [])] + kept
+            notes.append(f"arm equation: with stiction, stays of ≥ {STICTION_STILL_TICKS} ticks at one encoder count are left "
+                         f"out too (they may be short sticks); {em.n_rows} rows")
+    ambiguities, lookalikes, swaps = check_lookalikes(ems, res, opts)
+    for eq, alt in swaps.items():  # the look-alike test favours the alternative: it becomes the equation's model
+        r = res[eq]
+        res[eq] = EquationResult(eq, r.rows, r.nominal, refit(ems[eq], alt.spec), r.trace, r.location)
+        found = [f for f in found if not (f.equation == eq and f.source == "inverse dynamics")] + _found(ems[eq], res[eq], [])
     if stick is not None:
         ambiguities += stick.ambiguities
         lookalikes += stick.lookalikes
@@ -354,6 +402,35 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
         models=ems, prediction=prediction, decay=decay.as_json() if decay is not None else None, decay_result=decay,
         stick=stick,
     )
+
+
+def _select(ctx: Context, eq: str, opts: Options, rows: np.ndarray | None = None) -> tuple[EquationModel, EquationResult]:
+    """Forward selection and refit of one equation's effects (on ``rows`` of its usable rows, if given)."""
+    em = EquationModel(ctx, eq, opts.thresholds, row_filter=rows)
+    nominal, selected, trace = em.select()
+    if selected.spec.effects:
+        selected = refit(em, selected.spec)
+    loc = locate(ctx, eq, em.target(Spec(eq)), em.row_mask)
+    return em, EquationResult(eq, em.n_rows, nominal, selected, trace, loc)
+
+
+def _found(em: EquationModel, r: EquationResult, notes: list[str]) -> list[Found]:
+    """The selected effects of one equation, each with the held-out gain it brings given the others."""
+    out = []
+    ev = r.selected
+    for name in ev.spec.effects:
+        kind = CANDIDATES[name].nonlinear
+        if kind is not None:
+            grid = em.grid(kind)
+            value = ev.spec.d_inertia if kind == "inertia" else getattr(ev.spec.path, kind)
+            step = float(np.median(np.diff(grid)))
+            if value is not None and (value <= grid[0] + step or value >= grid[-1] - step):
+                notes.append(f"{name}: {ev.params[name]} is at the edge of the range searched; the data asks for "
+                             "more than the library's range (treat it as a sign of other missing physics)")
+        without = em.evaluate(ev.spec.without(name))
+        gain = (without.cv - ev.cv) / without.cv if without.cv else 0.0
+        out.append(Found(name, r.equation, ev.params[name], ev.se.get(name, {}), float(ev.t_stat.get(name, 0.0)), gain))
+    return out
 
 
 def _stick_windows(ctx: Context, found: list[Found], ems: dict[str, EquationModel], res: dict[str, EquationResult],

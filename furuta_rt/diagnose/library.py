@@ -131,6 +131,13 @@ class Context:
         return (self.inverse_dynamics(ARM, plant1) - self.arm_id) / INERTIA_STEP
 
     @cached_property
+    def arm_pendulum_part(self) -> np.ndarray:
+        """ID_arm with φ̈ = 0: the pendulum's reaction γ cos θ θ̈ and the velocity terms of eq. 4's arm row (the part
+        an input gain would scale and an arm-inertia change would not)."""
+        s = self.arm
+        return self.plant.inverse_dynamics(s.theta, s.theta_dot, s.phi_dot, s.theta_ddot, np.zeros_like(s.theta))[1]
+
+    @cached_property
     def arm_m22(self) -> np.ndarray:
         """M22(θ) of eq. 4, the arm's inertia as the arm equation sees it (from inverse_dynamics)."""
         s = self.arm
@@ -155,17 +162,23 @@ class Context:
     # ------------------------------------------------------------------ masks
     @cached_property
     def arm_still(self) -> np.ndarray:
-        """Samples in runs of ≥ STILL_TICKS ticks with the same encoder count: the arm is stuck, or moves
-        too slowly for the encoder to resolve its acceleration. Runs at rest with nothing pushing the arm
-        (no command, the pendulum still: before a step, say) are not counted: eq. 4 holds there as 0 = 0."""
-        cnt = np.round(self.prep.phi / self.prep.phi_lsb).astype(np.int64)
-        start = np.flatnonzero(np.concatenate([[True], np.diff(cnt) != 0]))
-        runs = np.diff(np.concatenate([start, [len(cnt)]]))
-        still = np.repeat(runs, runs) >= STILL_TICKS
+        return self.stays(STILL_TICKS)
+
+    def stays(self, ticks: int) -> np.ndarray:
+        """Samples in runs of ≥ ``ticks`` ticks with the same encoder count: the arm is stuck, or moves too
+        slowly for the encoder to resolve its acceleration. Runs at rest with nothing pushing the arm (no
+        command, the pendulum still: before a step, say) are not counted: eq. 4 holds there as 0 = 0."""
+        runs = self.count_runs
+        still = np.repeat(runs, runs) >= ticks
         run_id = np.repeat(np.arange(len(runs)), runs)
         pushed = (self.prep.u != 0) | (np.abs(self.arm.theta_dot) > QUIET_THETA_DOT)
         pushed_run = np.bincount(run_id, weights=pushed.astype(float), minlength=len(runs)) > 0
         return still & pushed_run[run_id]
+
+    def clear_of(self, mask: np.ndarray) -> np.ndarray:
+        """Rows whose arm filter window holds no sample of ``mask``."""
+        h = self.arm.filt.half + 2
+        return np.convolve(mask.astype(float), np.ones(2 * h + 1), mode="same") == 0
 
     @cached_property
     def arm_direction(self) -> np.ndarray:
@@ -197,16 +210,34 @@ class Context:
         the arm hardly moves at all (less than MIN_ARM_TRAVEL encoder counts end to end)."""
         if not self.prep.moves(self.prep.phi):
             return np.zeros(self.prep.n, dtype=bool)
-        h = self.arm.filt.half + 2
-        near = np.convolve(self.arm_still.astype(float), np.ones(2 * h + 1), mode="same") > 0
-        return self.prep.valid & ~near
+        return self.prep.valid & self.clear_of(self.arm_still)
+
+    @cached_property
+    def count_runs(self) -> np.ndarray:
+        """Lengths of the runs of equal encoder counts of φ, in time order."""
+        cnt = np.round(self.prep.phi / self.prep.phi_lsb).astype(np.int64)
+        start = np.flatnonzero(np.concatenate([[True], np.diff(cnt) != 0]))
+        return np.diff(np.concatenate([start, [len(cnt)]]))
 
     @cached_property
     def pend_rows(self) -> np.ndarray:
-        return self.prep.valid
+        """Rows of the pendulum equation, less those whose filter window holds the start or end of a slow stretch (a
+        run of ≥ SLOW_TICKS at one count). There the encoder's quantisation error is a slow ramp and step, which the
+        kernel passes as a false φ̈ (it enters through γ cos θ φ̈); inside a stick φ is exactly constant (kept), and
+        in fast motion the error is white and filtered out."""
+        runs = self.count_runs
+        slow = np.repeat(runs, runs) >= SLOW_TICKS
+        edges = np.zeros(self.prep.n)
+        edges[np.flatnonzero(np.diff(slow.astype(int)))] = 1.0
+        h = self.pend.filt.half + 2
+        near = np.convolve(edges, np.ones(2 * h + 1), mode="same") > 0
+        return self.prep.valid & ~near
 
 
 STILL_TICKS = 10
+STICTION_STILL_TICKS = 5  # with a breakaway torque above the sliding level, even a short stay may be a stick
+SLOW_TICKS = 100  # a run this long at one count (0.2 s at 500 Hz): a stick, or motion slow enough for the kernel to pass
+# the quantisation error's ramp
 QUIET_THETA_DOT = 0.05  # rad/s: a pendulum slower than this hardly pushes the arm
 
 

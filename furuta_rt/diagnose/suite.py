@@ -135,16 +135,28 @@ def cases() -> list[Case]:
 
 
 def hard_cases() -> list[Case]:
-    """Harder effects, scored apart: input deadzone, pendulum Coulomb friction, arm stiction (breakaway above the
-    sliding level: not modelled by diagnose yet, so these count as misses), an input saturation that clips 1 % of
+    """Harder effects, scored apart: input deadzones, pendulum Coulomb friction, an input saturation that clips 1 % of
     the commands."""
     return [
         _c("input_deadzone", 51, "sine", "input_deadzone.width=0.02"),
         _c("input_deadzone", 52, None, "input_deadzone.width=0.01"),
         _c("pendulum_coulomb", 54, "sine", "pendulum_coulomb.Fc=0.0002"),
+        _c("input_saturation", 57, "square", "input_saturation.limit=0.5"),
+    ]
+
+
+def stiction_cases() -> list[Case]:
+    """Arm stiction (eq. 2: breakaway Fs above the sliding level Fc), scored apart: Fc 0.03–0.1 N m, Fs 1.5–2 × Fc,
+    without excitation (the arm parks in a stick–slip limit cycle), with a square-wave reference (it parks at the
+    plateaus) and with a two-sine reference (it rarely sticks for long)."""
+    return [
         _c("arm_stiction", 55, None, "arm_coulomb.Fc=0.03", "arm_stiction.Fs=0.05"),
         _c("arm_stiction", 56, "sine", "arm_coulomb.Fc=0.04", "arm_stiction.Fs=0.06"),
-        _c("input_saturation", 57, "square", "input_saturation.limit=0.5"),
+        _c("arm_stiction", 58, None, "arm_coulomb.Fc=0.05", "arm_stiction.Fs=0.08"),
+        _c("arm_stiction", 59, "square", "arm_coulomb.Fc=0.06", "arm_stiction.Fs=0.12"),
+        _c("arm_stiction", 60, "square", "arm_coulomb.Fc=0.1", "arm_stiction.Fs=0.15"),
+        _c("arm_stiction", 61, "sine", "arm_coulomb.Fc=0.08", "arm_stiction.Fs=0.14"),
+        _c("arm_stiction", 62, None, "arm_coulomb.Fc=0.07", "arm_stiction.Fs=0.14"),
     ]
 
 
