@@ -16,9 +16,27 @@ import time
 from pathlib import Path
 
 from furuta_rt.config import load_rig
-from furuta_rt.io.mcap_read import read_log
-from furuta_rt.replay import replay_log
+from furuta_rt.io.mcap_read import LogData, read_log
+from furuta_rt.replay import ReplayResult, replay_log
 from furuta_rt.replay.simulate import simulate_log
+
+
+def cached_log_path(minutes: float, rate: float, mode: str) -> Path:
+    """Where the simulated log is cached (the temp dir; scripts/bench uses the same file)."""
+    return Path(tempfile.gettempdir()) / f"furuta_bench_replay_{minutes:g}min_{rate:g}hz_{mode}.mcap"
+
+
+def best_of(path: Path, repeat: int) -> tuple[LogData, ReplayResult, float, float]:
+    """(log, replay result, best read_log CPU s, best replay_log CPU s) over ``repeat`` runs."""
+    best_read = best_replay = float("inf")
+    for _ in range(repeat):
+        t0 = time.process_time()
+        log = read_log(path, timing=False, events=False)
+        t1 = time.process_time()
+        result = replay_log(log)
+        t2 = time.process_time()
+        best_read, best_replay = min(best_read, t1 - t0), min(best_replay, t2 - t1)
+    return log, result, best_read, best_replay
 
 
 def main() -> None:
@@ -31,19 +49,12 @@ def main() -> None:
     args = ap.parse_args()
     rig = load_rig("thesis")
     rig = rig.model_copy(update={"control": rig.control.model_copy(update={"rate_hz": args.rate})})
-    path = args.log or Path(tempfile.gettempdir()) / f"furuta_bench_replay_{args.minutes:g}min_{args.rate:g}hz_{args.mode}.mcap"
+    path = args.log or cached_log_path(args.minutes, args.rate, args.mode)
     if not path.exists():
         t0 = time.process_time()
         simulate_log(path, rig, args.minutes * 60.0, mode=args.mode, substep_hz=args.rate, flush_every=1.0)
         print(f"generated {path} ({path.stat().st_size / 1e6:.1f} MB) in {time.process_time() - t0:.1f} s")
-    best_read = best_replay = float("inf")
-    for _ in range(args.repeat):
-        t0 = time.process_time()
-        log = read_log(path, timing=False, events=False)
-        t1 = time.process_time()
-        result = replay_log(log)
-        t2 = time.process_time()
-        best_read, best_replay = min(best_read, t1 - t0), min(best_replay, t2 - t1)
+    log, result, best_read, best_replay = best_of(path, args.repeat)
     span = log.duration
     total = best_read + best_replay
     print(f"log: {log.n_ticks} ticks, {span:.1f} s of run, {path.stat().st_size / 1e6:.1f} MB")

@@ -7,18 +7,36 @@ Run: scripts/bench [--quick] [--json OUT] [--only tick,simulator,...]
 from __future__ import annotations
 
 import argparse
+import contextlib
+import gzip
 import json
 import math
+import multiprocessing
+import os
+import platform
+import queue
+import re
+import resource
+import select
+import socket
 import statistics
+import subprocess
 import sys
+import tempfile
+import threading
 import time
+import tty
 from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 Section = Callable[[bool], dict[str, Any]]
 SECTIONS: dict[str, Section] = {}
+FURUTA_RT = [sys.executable, "-c", "import sys; from furuta_rt.cli import main; sys.exit(main())"]  # `furuta-rt`
+CHILD_TIMEOUT_S = 60.0  # a child process (daemon, logger) that has not started by then has failed
 
 
 def section(name: str) -> Callable[[Section], Section]:
@@ -202,6 +220,807 @@ def _closed_loop_vs_scipy(model: Any, rig: Any, law: Any, duration: float) -> di
     }
 
 
+# ------------------------------------------------------------------------------ /proc helpers
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def _stat_fields(pid: int) -> list[str] | None:
+    """/proc/PID/stat after the command name (index 0 = field 3, 'state')."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+
+
+def proc_cpu_s(pid: int) -> float | None:
+    """User + system CPU seconds of a process (all its threads)."""
+    f = _stat_fields(pid)
+    return None if f is None else (int(f[11]) + int(f[12])) / CLK_TCK
+
+
+def proc_status_kb(pid: int, key: str) -> int | None:
+    """A kB figure of /proc/PID/status (VmRSS, VmHWM)."""
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            for line in fh:
+                if line.startswith(key + ":"):
+                    return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+def _cmdline(pid: int | str) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as fh:
+            return fh.read().replace(b"\0", b" ").decode(errors="replace").strip()
+    except OSError:
+        return ""
+
+
+def child_processes(pid: int) -> dict[str, int]:
+    """The daemon's children by role: 'mock' (python -m hil_mock) and 'logger' (multiprocessing spawn)."""
+    out: dict[str, int] = {}
+    for d in os.listdir("/proc"):
+        f = _stat_fields(int(d)) if d.isdigit() else None
+        if f is None or int(f[1]) != pid:
+            continue
+        cmd = _cmdline(d)
+        if "hil_mock" in cmd:
+            out["mock"] = int(d)
+        elif "spawn_main" in cmd:
+            out["logger"] = int(d)
+    return out
+
+
+def cpu_times() -> tuple[int, int, int]:
+    """(busy, total, steal) jiffies of the whole machine, from /proc/stat."""
+    with open("/proc/stat") as fh:
+        v = [int(x) for x in fh.readline().split()[1:]]
+    idle = v[3] + v[4]
+    return sum(v[:8]) - idle, sum(v[:8]), v[7]
+
+
+def other_realtime_tasks() -> list[str]:
+    """User processes (not kernel threads, not this one) running SCHED_FIFO/RR right now."""
+    out = []
+    for d in os.listdir("/proc"):
+        f = _stat_fields(int(d)) if d.isdigit() else None
+        if f is None or int(d) == os.getpid() or int(f[38]) not in (1, 2):
+            continue
+        cmd = _cmdline(d)
+        if cmd:
+            out.append(f"{d} rtprio {f[37]}: {cmd[:80]}")
+    return out
+
+
+def machine() -> dict[str, Any]:
+    """What the figures were measured on (the kernel's preemption model and tick bound real-time latency)."""
+    info: dict[str, Any] = {
+        "date": time.strftime("%Y-%m-%d %H:%M:%S %z"), "cpus": os.cpu_count(), "kernel": platform.release(),
+        "kernel_version": platform.version(), "python": platform.python_version(),
+        "loadavg": [round(x, 2) for x in os.getloadavg()],
+    }
+    with contextlib.suppress(OSError), open("/proc/cpuinfo") as fh:
+        info["hypervisor"] = bool(re.search(r"^flags\s*:.*\bhypervisor\b", fh.read(), re.M))
+    with contextlib.suppress(OSError, subprocess.SubprocessError):
+        dm = subprocess.run(["dmesg"], capture_output=True, text=True, timeout=5).stdout
+        m = re.search(r"Dynamic Preempt: (\w+)", dm)
+        if m:
+            info["preempt"] = m.group(1)
+    with contextlib.suppress(OSError, EOFError):
+        with gzip.open("/proc/config.gz", "rt") as fh:
+            cfg = fh.read()
+        m = re.search(r"^CONFIG_HZ=(\d+)", cfg, re.M)
+        if m:
+            info["kernel_hz"] = int(m.group(1))
+        if "preempt" not in info:
+            m = re.search(r"^CONFIG_PREEMPT(_NONE|_VOLUNTARY|_RT|)=y", cfg, re.M)
+            if m:
+                info["preempt"] = (m.group(1).lstrip("_") or "full").lower()
+    info["other_realtime_tasks"] = other_realtime_tasks()
+    return info
+
+
+# --------------------------------------------------------------------- the daemon, from outside
+@dataclass
+class DaemonRun:
+    """One `furuta-rt run --mock --log` as a subprocess: its --summary-json, hil-mock's --stats-json,
+    CPU shares and RSS sampled from /proc while it ticked, and the miss attribution from its log."""
+
+    rate: int
+    seconds: float
+    exit_code: int
+    summary: dict[str, Any]
+    mock: dict[str, Any]
+    cpu_share: dict[str, float]  # of one core, over the ticking window
+    machine_busy: float  # fraction of all CPUs busy during the run (every process on the machine)
+    steal: float  # fraction of CPU time stolen by the hypervisor during the run
+    rss_kb: list[tuple[float, int]]  # (s since ticking started, VmRSS) of the control process
+    logger_rss_kb: list[tuple[float, int]]
+    peak_rss_kb: int | None
+    attribution: dict[str, Any]
+    loadavg: list[float]
+
+    @property
+    def misses(self) -> int:
+        """Periods the pair missed: the device got no answer to a SAMPLE before its next tick
+        (COMMAND_LATE), plus periods the device itself skipped (hil-mock overran)."""
+        return int(self.summary["late_commands"]) + int(self.mock.get("missed_periods", 0))
+
+    @property
+    def periods(self) -> int:
+        return int(self.summary["ticks"]) + int(self.mock.get("missed_periods", 0))
+
+    def figures(self) -> dict[str, Any]:
+        s, period = self.summary, 1e6 / self.rate
+        lat = s["latency_us"]
+        return {
+            "rate_hz": self.rate, "seconds": self.seconds, "end": s["end"], "ticks": s["ticks"],
+            "achieved_rate_hz": s["achieved_rate_hz"], "device_rate_hz": s["device_rate_hz"],
+            "achieved_fraction": (s["device_rate_hz"] or 0.0) / self.rate,
+            "misses": self.misses, "periods": self.periods, "miss_percent": 100.0 * self.misses / max(self.periods, 1),
+            "late_commands": s["late_commands"], "host_skipped_periods": s["skipped_periods"],
+            "host_overruns": s["overruns"], "mock_missed_periods": self.mock.get("missed_periods"),
+            "latency_p50_us": lat["p50"], "latency_p99_us": lat["p99"], "latency_max_us": lat["max"],
+            "latency_p50_fraction": (lat["p50"] or 0.0) / period, "latency_p99_fraction": (lat["p99"] or 0.0) / period,
+            "host_compute_p99_us": (s["update_us"]["p99"] or 0.0) + (s["write_us"]["p99"] or 0.0),
+            "log_drops": s["dropped_log_messages"], "cpu_share": self.cpu_share,
+            "machine_busy": self.machine_busy, "steal": self.steal, "loadavg": self.loadavg,
+        }
+
+
+_RUNS: dict[tuple[int, float, bool], DaemonRun] = {}
+
+
+def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = True) -> DaemonRun:
+    """Run the daemon against hil-mock (real-time pacing, over a pty, with an MCAP log unless ``log`` is
+    False), sampled from outside. Cached: the closed-loop, logging and memory sections share a run."""
+    key = (rate, seconds, log)
+    if key in _RUNS:
+        return _RUNS[key]
+    with tempfile.TemporaryDirectory(prefix="furuta-bench-") as tmp:
+        d = Path(tmp)
+        cmd = [*FURUTA_RT, "run", "--mock", "--rate", str(rate), "--duration", f"{seconds:g}",
+               "--no-tui", "--summary-json", str(d / "summary.json"), "--mock-seed", "0",
+               f"--mock-arg=--stats-json={d / 'mock.json'}", *(["--log", str(d / "run.mcap")] if log else [])]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        ticking = threading.Event()
+        err_lines: list[str] = []
+
+        def read_stderr() -> None:
+            for line in proc.stderr:  # type: ignore[union-attr]
+                err_lines.append(line)
+                if line.startswith("furuta-rt: device ") and " firmware " in line:  # the loop's first event
+                    ticking.set()
+
+        threads = [threading.Thread(target=read_stderr, daemon=True),
+                   threading.Thread(target=proc.stdout.read, daemon=True)]  # type: ignore[union-attr]
+        for t in threads:
+            t.start()
+        t_wait = time.monotonic() + CHILD_TIMEOUT_S
+        while not ticking.wait(0.05) and proc.poll() is None and time.monotonic() < t_wait:
+            pass
+        t0 = time.monotonic()
+        pids = {"control": proc.pid, **child_processes(proc.pid)}
+        cpu0 = {k: proc_cpu_s(p) for k, p in pids.items()}
+        last = dict(cpu0)
+        busy0, total0, steal0 = busy1, total1, steal1 = cpu_times()
+        t_last = t0
+        rss: list[tuple[float, int]] = []
+        lrss: list[tuple[float, int]] = []
+        peak = None
+        while proc.poll() is None:
+            now = time.monotonic()
+            if now - t0 <= seconds - 0.5:  # still ticking (device time runs with the wall clock)
+                for k, p in pids.items():
+                    c = proc_cpu_s(p)
+                    if c is not None:
+                        last[k] = c
+                busy1, total1, steal1 = cpu_times()
+                t_last = now
+                r = proc_status_kb(proc.pid, "VmRSS")
+                if r is not None:
+                    rss.append((now - t0, r))
+                    peak = proc_status_kb(proc.pid, "VmHWM")
+                if "logger" in pids and (r := proc_status_kb(pids["logger"], "VmRSS")) is not None:
+                    lrss.append((now - t0, r))
+            time.sleep(sample_s)
+        for t in threads:
+            t.join(5.0)
+        window = max(t_last - t0, 1e-9)
+        shares = {k: (last[k] - cpu0[k]) / window for k in pids if last[k] is not None and cpu0[k] is not None}
+        try:
+            summary = json.loads((d / "summary.json").read_text())
+        except (OSError, ValueError):
+            raise RuntimeError(f"furuta-rt run exited {proc.returncode} without a summary: {''.join(err_lines)[-800:]}") from None
+        mock = json.loads((d / "mock.json").read_text()) if (d / "mock.json").exists() else {}
+        run = DaemonRun(rate, seconds, proc.returncode, summary, mock, shares,
+                        (busy1 - busy0) / max(total1 - total0, 1), (steal1 - steal0) / max(total1 - total0, 1),
+                        rss, lrss, peak, attribute_misses(d / "run.mcap", rate) if log else {},
+                        [round(x, 2) for x in os.getloadavg()])
+    _RUNS[key] = run
+    return run
+
+
+def attribute_misses(path: Path, rate: float) -> dict[str, Any]:
+    """Why each COMMAND_LATE happened, from the run's own log (/furuta/tick status, /furuta/timing):
+    the SAMPLE reached the host loop a period or more after the device took it (no command, or a
+    command after the next tick) — and then whether the host's own compute was long — or the command
+    left in time and reached the device late (the return path)."""
+    from firmware_protocol import StatusFlags
+    from furuta_rt.io.mcap_read import read_log
+
+    log = read_log(path, timing=True, events=False)
+    tk, tm = log.ticks, log.timing
+    period = 1e6 / rate
+    flagged = (tk["status"] & int(StatusFlags.COMMAND_LATE)) != 0
+    balancing = tk["state"] == "balancing"
+    k = np.flatnonzero(flagged[1:] & balancing[:-1])  # the late flag on tick k+1 is about the answer to k
+    lat, late = tm["latency_us"][k], tm["lateness_us"]
+    compute = tm["update_us"] + tm["write_us"]
+    host_late = (lat < 0) | (lat >= period)
+    return {
+        "late_commands_in_log": len(k),
+        "no_command_host_behind": int(np.sum(lat < 0)),
+        "command_after_next_tick": int(np.sum(lat >= period)),
+        "sample_reached_host_late": int(np.sum(host_late & (late[k] >= period - compute[k]))),
+        "host_compute_over_half_period": int(np.sum(compute[k] > period / 2)),
+        "return_path": int(np.sum(~host_late)),
+        "tick_start_lateness_us": {q: float(np.percentile(late, p)) for q, p in (("p50", 50), ("p99", 99), ("p99.9", 99.9))},
+        "host_compute_us": {q: float(np.percentile(compute, p)) for q, p in (("p50", 50), ("p99", 99), ("max", 100))},
+    }
+
+
+# ------------------------------------------------------------------ the machine's own limits
+# Three probes in Python without any furuta-rt code, at the loop's rate and priority (SCHED_FIFO 50),
+# each counting periods missed the way the pair does: (1) one thread sleeping to absolute deadlines
+# (cf. cyclictest): a period is missed when the thread wakes a whole period late; (2) a "device"
+# process writing a 20-byte frame at each deadline to a "host" process that answers 12 bytes, over a
+# socketpair; (3) the same over a pseudo-terminal (the hil-mock link): a period is missed when the
+# answer is not back by the next deadline. (1) → (2) adds a second process's wake-up, (2) → (3) the
+# kernel's pty delivery (tty flip-buffer work items), (3) → the daemon run adds furuta-rt itself.
+def _fifo(priority: int = 50) -> bool:
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        return True
+    except (AttributeError, OSError):
+        return False
+
+
+def _device_side(conn: Any, fd: int | None, period_ns: int, seconds: float) -> None:
+    fifo = _fifo()
+    pc = time.perf_counter_ns
+    periods = missed = 0
+    wake: list[int] = []
+    rtt: list[int] = []
+    frame = b"\xaa" * 20
+    time.sleep(0.3)  # the host side is up
+    d = pc() + period_ns
+    end = d + round(seconds * 1e9)
+    while d < end:
+        dt = d - pc()
+        if dt > 0:
+            time.sleep(dt * 1e-9)
+        t = pc()
+        late = t - d
+        wake.append(late)
+        skipped = late // period_ns  # whole periods passed: skipped, as hil-mock does after an overrun
+        periods += skipped + 1
+        missed += skipped
+        d += (skipped + 1) * period_ns
+        if fd is None:
+            continue
+        with contextlib.suppress(BlockingIOError):
+            os.read(fd, 4096)  # answers that came too late
+        os.write(fd, frame)
+        got = 0
+        while got < 12:
+            left = d - pc()
+            if left <= 0 or not select.select([fd], [], [], left * 1e-9)[0]:
+                break
+            got += len(os.read(fd, 4096))
+        if got >= 12:
+            rtt.append(pc() - t)
+        else:
+            missed += 1
+    if fd is not None:
+        os.close(fd)
+    conn.send({"fifo": fifo, "periods": periods, "missed": missed, "wake_ns": np.array(wake), "rtt_ns": np.array(rtt)})
+
+
+def _host_side(fd: int) -> None:
+    _fifo()
+    with contextlib.suppress(OSError):
+        while True:
+            select.select([fd], [], [])
+            if not os.read(fd, 4096):
+                break
+            os.write(fd, b"\x55" * 12)
+    os._exit(0)
+
+
+def probe(kind: str, rate: int, seconds: float) -> dict[str, Any]:
+    """kind: 'wake' (one thread), 'socketpair' or 'pty' (device + host processes)."""
+    ctx = multiprocessing.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+    host = None
+    dev_fd = None
+    if kind != "wake":
+        if kind == "pty":
+            dev_fd, host_fd = os.openpty()
+            tty.setraw(host_fd)
+            tty.setraw(dev_fd)
+        else:
+            a, b = socket.socketpair()
+            dev_fd, host_fd = a.detach(), b.detach()
+        os.set_blocking(dev_fd, False)
+        host = ctx.Process(target=_host_side, args=(host_fd,))
+        host.start()
+        os.close(host_fd)
+    dev = ctx.Process(target=_device_side, args=(send, dev_fd, round(1e9 / rate), seconds))
+    dev.start()
+    if dev_fd is not None:
+        os.close(dev_fd)
+    r = recv.recv()
+    dev.join(5.0)
+    if host is not None:
+        host.join(5.0)
+        if host.is_alive():
+            host.terminate()
+    period = 1e6 / rate
+    out: dict[str, Any] = {"fifo": r["fifo"], "periods": r["periods"], "missed": r["missed"],
+                           "miss_percent": 100.0 * r["missed"] / max(r["periods"], 1)}
+    w = r["wake_ns"] / 1000.0
+    out["wake_late_us"] = {"p50": float(np.percentile(w, 50)), "p99": float(np.percentile(w, 99)), "max": float(w.max())}
+    if len(r["rtt_ns"]):
+        t = r["rtt_ns"] / 1000.0
+        out["round_trip_us"] = {"p50": float(np.percentile(t, 50)), "p99": float(np.percentile(t, 99)), "max": float(t.max())}
+        out["round_trip_p99_fraction"] = out["round_trip_us"]["p99"] / period
+    return out
+
+
+# ------------------------------------------------------------------------------- closed loop
+STALL_KEYS = ("stalls", "stalls_within_5_ticks_after_a_put", "share_expected_if_unrelated")
+PEERS_CEILING_HZ = 2600.0  # the open Furuta peers' request/response ceiling with their full Python side
+MISS_TARGET_PERCENT = 0.1
+
+
+@section("closed_loop")
+def bench_closed_loop(quick: bool) -> dict[str, Any]:
+    """`furuta-rt run --mock --log` at 1 kHz against hil-mock (another process, real-time pacing, over a
+    pty); a rate sweep; the machine's own limits (probes) and the attribution of the misses."""
+    main = daemon_run(1000, 60.0)  # shared with the logging and memory sections
+    out: dict[str, Any] = {"at_1kHz": main.figures(), "attribution_1kHz": main.attribution}
+    out["target"] = f"< {MISS_TARGET_PERCENT}% misses at 1 kHz"
+    out["met"] = out["at_1kHz"]["miss_percent"] < MISS_TARGET_PERCENT
+    probe_s = 3.0 if quick else 60.0
+    out["probes_1kHz"] = {kind: probe(kind, 1000, probe_s) for kind in ("wake", "socketpair", "pty")}
+    if not quick:  # the same run without --log (no logger process, no queue)
+        out["at_1kHz_without_log"] = daemon_run(1000, 60.0, log=False).figures()
+    sweep_s = 5.0 if quick else 20.0
+    sweep = {1000: out["at_1kHz"]}
+    for rate in (500, 2000, 5000) if quick else (500, 2000, 3000, 5000):
+        sweep[rate] = daemon_run(rate, sweep_s).figures()
+    out["sweep"] = {str(r): {k: sweep[r][k] for k in ("seconds", "achieved_fraction", "miss_percent", "latency_p50_us",
+                                                     "latency_p99_us", "mock_missed_periods", "cpu_share", "end")}
+                    for r in sorted(sweep)}
+    ok = [r for r in sorted(sweep) if sweep[r]["miss_percent"] < MISS_TARGET_PERCENT]
+    out["highest_rate_under_0.1%_misses_hz"] = ok[-1] if ok else None
+    keeps_up = [r for r in sorted(sweep) if sweep[r]["achieved_fraction"] >= 0.99]
+    out["highest_rate_achieved_within_1%_hz"] = keeps_up[-1] if keeps_up else None
+    out["peers_ceiling_hz"] = PEERS_CEILING_HZ
+    return out
+
+
+# ----------------------------------------------------------------------------------- hil_mock
+def _bench_mock_module() -> Any:
+    """scripts/bench_mock (a script without .py) as a module: its measurements, not a copy of them."""
+    from importlib.machinery import SourceFileLoader
+    from importlib.util import module_from_spec, spec_from_loader
+
+    loader = SourceFileLoader("bench_mock", str(Path(__file__).with_name("bench_mock")))
+    spec = spec_from_loader(loader.name, loader)
+    assert spec is not None
+    mod = module_from_spec(spec)
+    loader.exec_module(mod)
+    return mod
+
+
+@section("mock")
+def bench_mock(quick: bool) -> dict[str, Any]:
+    """hil-mock's real-time factor at 1 kHz with LuGre arm friction (scripts/bench_mock's two figures):
+    the firmware tick in-process, and free-running over a pty with a host answering every SAMPLE."""
+    bm = _bench_mock_module()
+    rate = 1000
+    tick_us, sim_us = bm.core_cost(rate, bm.LUGRE, 5 * rate if quick else 20 * rate)
+    eff = [x for e in bm.LUGRE for x in ("--effect", e)]
+    host, dev = bm.mock_run([*eff, "--rate", str(rate), "--pacing", "free"], 3.0 if quick else 10.0)
+    rtf_pty = host["device_s"] / host["host_wall_s"] if host["host_wall_s"] else 0.0
+    period_us = 1e6 / rate
+    return {
+        "effects": " ".join(bm.LUGRE),
+        "core_tick_us": tick_us, "core_real_time_factor": period_us / tick_us,
+        "simulator_advance_us": sim_us, "simulator_real_time_factor": period_us / sim_us,
+        "pty_real_time_factor": rtf_pty, "pty_device_work_us": dev["mean_work_us"],
+        "pty_samples": host["samples"], "pty_seq_gaps": host["seq_gaps"],
+        "target": ">= 20x real time at 1 kHz (over the pty)", "met": rtf_pty >= 20.0,
+    }
+
+
+# ------------------------------------------------------------------------------------- replay
+@section("replay")
+def bench_replay(quick: bool) -> dict[str, Any]:
+    """read_log (ticks, as `furuta-rt replay` reads) + replay_log on a simulated 1 kHz log, CPU time,
+    best of a few; then one instrumented read saying where its time goes."""
+    from furuta_rt.config import load_rig
+    from furuta_rt.io import mcap_read
+    from furuta_rt.io.mcap_read import read_log
+    from furuta_rt.replay.simulate import simulate_log
+    from scripts.bench_replay import best_of, cached_log_path
+
+    minutes, rate = (2.0 if quick else 10.0), 1000.0
+    path = cached_log_path(minutes, rate, "none")  # scripts/bench_replay's cache: generated once per machine
+    expected = round(minutes * 60 * rate)
+    out: dict[str, Any] = {"log_minutes": minutes, "log_rate_hz": rate}
+    if quick:
+        out["note"] = "--quick: a 2-minute log (full run: 10 minutes)"
+    for attempt in range(2):
+        if attempt or not path.exists():
+            rig = load_rig("thesis")
+            rig = rig.model_copy(update={"control": rig.control.model_copy(update={"rate_hz": rate})})
+            t0 = time.perf_counter()
+            simulate_log(path, rig, minutes * 60.0, mode="none", substep_hz=rate, flush_every=1.0)
+            out["generated_s"] = time.perf_counter() - t0
+        log = read_log(path, timing=False, events=False)
+        if log.n_ticks == expected and not log.warnings:
+            break
+    log, result, best_read, best_replay = best_of(path, 2 if quick else 3)
+    span = log.duration
+    out.update({
+        "ticks": log.n_ticks, "file_mb": path.stat().st_size / 1e6, "read_cpu_s": best_read, "replay_cpu_s": best_replay,
+        "read_x_real_time": span / best_read, "replay_x_real_time": span / best_replay,
+        "x_real_time": span / (best_read + best_replay), "deterministic": result.exact,
+        "target": ">= 200x real time", "met": span / (best_read + best_replay) >= 200.0,
+    })
+    out["read_breakdown"] = _read_breakdown(mcap_read, path)
+    return out
+
+
+def _read_breakdown(mcap_read: Any, path: Path) -> dict[str, Any]:
+    """CPU seconds of one read_log by stage, by wrapping the module's own functions for one call:
+    zstd decompression + CRC (mcap's get_chunk_data_stream), JSON decoding (the module's _loads, one
+    call per chunk), numpy columns (_Columns.flush less its JSON), and the rest (file, records, slicing)."""
+    spent = {"decompress": 0.0, "json": 0.0, "flush": 0.0}
+    originals = (mcap_read.get_chunk_data_stream, mcap_read._loads, mcap_read._Columns.flush)
+
+    def timed(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+        def wrapper(*a: Any, **k: Any) -> Any:
+            t = time.process_time()
+            try:
+                return fn(*a, **k)
+            finally:
+                spent[name] += time.process_time() - t
+
+        return wrapper
+
+    mcap_read.get_chunk_data_stream = timed("decompress", originals[0])
+    mcap_read._loads = timed("json", originals[1])
+    mcap_read._Columns.flush = timed("flush", originals[2])
+    try:
+        t0 = time.process_time()
+        mcap_read.read_log(path, timing=False, events=False)
+        total = time.process_time() - t0
+    finally:
+        mcap_read.get_chunk_data_stream, mcap_read._loads, mcap_read._Columns.flush = originals
+    parts = {"json_decode": spent["json"], "zstd_decompress_crc": spent["decompress"],
+             "numpy_columns": spent["flush"] - spent["json"]}
+    parts["file_records_slicing"] = total - sum(parts.values())
+    return {"total_cpu_s": total, **{f"{k}_s": v for k, v in parts.items()},
+            **{f"{k}_share": v / total for k, v in parts.items()}, "orjson_installed": mcap_read._orjson is not None}
+
+
+# ------------------------------------------------------------------------------------ logging
+def _log_producer(conn: Any, path: str | None, rate: int, seconds: float) -> None:
+    """A stand-in control process (spawned): the daemon's start-up order and real-time setup
+    (logger spawned, then furuta_rt.runtime.rt.setup_realtime: gc frozen, memory locked, SCHED_FIFO 50;
+    switch interval 0.1 ms; the first put starts the queue's feeder thread), then a 1 kHz tick that
+    sleeps to its deadline and makes the loop's logging calls: the 28-field record appended to the
+    batch, put_nowait of each rate/10-tick batch. ``path`` None: the same tick without logging."""
+    from furuta_rt.config import load_rig
+    from furuta_rt.io.mcap_log import run_metadata
+    from furuta_rt.runtime.logger import LogSetup, logger_process
+    from furuta_rt.runtime.rt import setup_realtime
+
+    ctx = multiprocessing.get_context("spawn")
+    q = proc = None
+    if path is not None:
+        q = ctx.Queue(maxsize=200)
+        ready = ctx.Event()
+        proc = ctx.Process(target=logger_process, args=(LogSetup(path=path, rig=load_rig("thesis")), q, ready))
+        proc.start()
+        ready.wait(CHILD_TIMEOUT_S)
+    applied, _ = setup_realtime(True)
+    sys.setswitchinterval(1e-4)
+    if q is not None:
+        q.put(("event", (time.time_ns(), "INFO", "bench")))
+        q.put_nowait(("open", {"device_id": "0x0"}, run_metadata("none", [0.0] * 4, rate, source="bench")))
+    period_ns, n, batch_ticks = round(1e9 / rate), round(seconds * rate), rate // 10
+    batch: list[tuple] = []
+    costs = np.zeros(n, dtype=np.int64)
+    late = np.empty(n, dtype=np.int64)
+    dropped = 0
+    pc = time.perf_counter_ns
+    wall0, perf0 = time.time_ns(), pc()
+    time.sleep(0.5)
+    ru0, main0, w0 = _rusage_s(), time.thread_time(), time.monotonic()
+    log0 = proc_cpu_s(proc.pid) if proc is not None else None
+    deadline = pc() + period_ns
+    for k in range(n):
+        dt = deadline - pc()
+        if dt > 0:
+            time.sleep(dt * 1e-9)
+        t1 = pc()
+        late[k] = t1 - deadline
+        deadline += period_ns
+        if q is None:
+            continue
+        dev_us = k * 1000
+        batch.append((
+            wall0 + (t1 - perf0), dev_us * 1000, k, dev_us * 1e-6, 1200 + k % 7, -3, 2048 + k % 13, 16,
+            0.001 * (k % 5), 0.01, 0.002 * (k % 11), 0.02, 0.03, 0.03, 0.0, False, 2, False,
+            1000.0, 15.0, 6.0, 18.0, 100.0, 60.0, 0, 0, 0, dropped,
+        ))
+        if len(batch) >= batch_ticks:
+            try:
+                q.put_nowait(("ticks", batch))
+            except queue.Full:
+                dropped += len(batch)
+            batch = []
+        costs[k] = pc() - t1
+    ru1, main1, w1 = _rusage_s(), time.thread_time(), time.monotonic()
+    log1 = proc_cpu_s(proc.pid) if proc is not None else None
+    if q is not None and proc is not None:
+        q.put(("close", ""))
+        proc.join(CHILD_TIMEOUT_S)
+    conn.send({"applied": applied, "costs_ns": costs, "late_ns": late, "dropped": dropped, "n": n,
+               "other_threads_cpu_s": (ru1 - ru0) - (main1 - main0),
+               "writer_cpu_s": (log1 - log0) if log0 is not None and log1 is not None else None, "wall_s": w1 - w0})
+
+
+def _producer_run(path: str | None, rate: int, seconds: float) -> dict[str, Any]:
+    ctx = multiprocessing.get_context("spawn")
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_log_producer, args=(send, path, rate, seconds))
+    proc.start()
+    t_end = time.monotonic() + seconds + 2 * CHILD_TIMEOUT_S
+    while not recv.poll(0.5):
+        if not proc.is_alive() or time.monotonic() > t_end:
+            proc.terminate()
+            raise RuntimeError(f"the logging producer ended without a report (exit code {proc.exitcode})")
+    r = recv.recv()
+    proc.join(CHILD_TIMEOUT_S)
+    period = round(1e9 / rate)
+    late = r["late_ns"]
+    r["deadline_misses_percent"] = 100.0 * float(np.mean(late >= period))
+    r["late_over_half_period_percent"] = 100.0 * float(np.mean(late >= period // 2))
+    r["wake_late_us"] = percentiles(late)
+    # stalls (a tick ≥ half a period late whose previous tick was not) by phase in the batch: the
+    # feeder thread pickles and writes a batch right after the put at k % batch = batch − 1
+    batch = rate // 10
+    over = late >= period // 2
+    starts = np.flatnonzero(over & ~np.r_[False, over[:-1]])
+    r["stalls"] = len(starts)
+    r["stalls_within_5_ticks_after_a_put"] = int(np.sum(starts % batch < 5))
+    r["share_expected_if_unrelated"] = 5 / batch
+    return r
+
+
+@section("logging")
+def bench_logging(quick: bool) -> dict[str, Any]:
+    """The control side of MCAP logging at 1 kHz — the calls the loop makes per tick plus the queue's
+    feeder thread (pickling, pipe writes) — and the writer process's CPU share, with the real logger
+    process fed by a stand-in control process under the daemon's real-time setup; the same tick
+    without logging beside it (deadline misses of the tick's own wake-ups); the logger's CPU share in
+    the daemon's own 1 kHz run."""
+    from furuta_rt.io.mcap_read import read_log
+    from furuta_rt.runtime.records import TICK_RECORD
+
+    rate, seconds = 1000, (5.0 if quick else 30.0)
+    period_us = 1e6 / rate
+    with tempfile.TemporaryDirectory(prefix="furuta-bench-") as tmp:
+        path = str(Path(tmp) / "log.mcap")
+        with_log = _producer_run(path, rate, seconds)
+        without = _producer_run(None, rate, seconds)
+        in_file = read_log(path, timing=False, events=False).n_ticks
+    n = with_log["n"]
+    costs = with_log["costs_ns"]
+    feeder_us = with_log["other_threads_cpu_s"] / n * 1e6  # the process's other thread: the queue feeder
+    per_tick = float(costs.mean()) / 1000.0 + feeder_us
+    writer = with_log["writer_cpu_s"]
+    run = daemon_run(1000, 60.0)
+    return {
+        "rate_hz": rate, "seconds": seconds, "batch_ticks": rate // 10, "record_fields": len(TICK_RECORD),
+        "realtime": with_log["applied"],
+        "loop_calls_us": percentiles(costs), "loop_calls_mean_us": float(costs.mean()) / 1000.0,
+        "feeder_thread_us_per_tick": feeder_us,
+        "control_side_us_per_tick": per_tick, "control_side_fraction_of_period": per_tick / period_us,
+        "writer_cpu_share": writer / with_log["wall_s"] if writer is not None else None,
+        "writer_us_per_tick": writer / n * 1e6 if writer is not None else None,
+        "dropped": with_log["dropped"], "ticks_in_file": in_file,
+        "tick_deadline_misses_percent": {"with_log": with_log["deadline_misses_percent"],
+                                         "without_log": without["deadline_misses_percent"]},
+        "tick_wake_late_us": {"with_log": with_log["wake_late_us"], "without_log": without["wake_late_us"]},
+        "stalls_with_log": {k: with_log[k] for k in STALL_KEYS},
+        "daemon_1kHz": {"logger_cpu_share": run.cpu_share.get("logger"), "control_cpu_share": run.cpu_share.get("control"),
+                        "mock_cpu_share": run.cpu_share.get("mock"), "log_drops": run.summary["dropped_log_messages"]},
+    }
+
+
+def _rusage_s() -> float:
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return ru.ru_utime + ru.ru_stime
+
+
+# ----------------------------------------------------------------------------------- diagnose
+@section("diagnose")
+def bench_diagnose(quick: bool) -> dict[str, Any]:
+    """`diagnose` with the CLI's default options (closed-loop re-simulation on) on 60 s, 500 Hz
+    recordings of the diagnose suite (scripts/bench_diagnose's cases and cache)."""
+    from furuta_rt.config import load_rig
+    from furuta_rt.diagnose import Options, diagnose, suite
+
+    rig = load_rig("thesis")
+    cache = Path.home() / ".cache" / "furuta-rt" / "diagnose-suite"
+    cases = suite.quick_cases()
+    cases = [c for c in cases if c.name == "arm_coulomb"] if quick else cases
+    rows = []
+    for case in cases:
+        rec = suite.generate(case, rig, cache)
+        t0, c0 = time.perf_counter(), time.process_time()
+        d = diagnose(rec, rig, Options())
+        rows.append({"case": f"{case.name} seed {case.seed}", "seconds": time.perf_counter() - t0,
+                     "cpu_s": time.process_time() - c0, "recording_s": float(rec.t[-1] - rec.t[0]),
+                     "samples": len(rec.t), "found": [e["name"] for e in d.to_json()["effects"]]})
+    worst = max(r["seconds"] for r in rows)
+    return {"cases": rows, "max_seconds": worst, "fraction_of_target": worst / 20.0,
+            "x_real_time": min(r["recording_s"] / r["seconds"] for r in rows), "target": "<= 20 s", "met": worst <= 20.0}
+
+
+# ------------------------------------------------------------------------------------- memory
+@section("memory")
+def bench_memory(quick: bool) -> dict[str, Any]:
+    """RSS of the daemon's control process over a 1 kHz run (quick: the 60 s closed-loop run; full:
+    10 minutes), sampled from /proc; slope fitted after the first 10 s (start-up), peak = VmHWM."""
+    seconds = 60.0 if quick else 600.0
+    run = daemon_run(1000, seconds, sample_s=1.0 if quick else 5.0)
+    out: dict[str, Any] = {"seconds": seconds, "end": run.summary["end"]}
+    for name, series in (("control", run.rss_kb), ("logger", run.logger_rss_kb)):
+        pts = np.array([(t, kb) for t, kb in series if t >= 10.0], dtype=float)
+        if len(pts) < 3:
+            out[name] = {"samples": len(pts)}
+            continue
+        slope = float(np.polyfit(pts[:, 0] / 60.0, pts[:, 1], 1)[0])
+        out[name] = {"samples": len(pts), "first_kb": int(pts[0, 1]), "last_kb": int(pts[-1, 1]), "max_kb": int(pts[:, 1].max()),
+                     "slope_kb_per_min": slope, "growth_per_hour_fraction": slope * 60.0 / float(pts[:, 1].max())}
+    out["control_peak_rss_kb"] = run.peak_rss_kb
+    growth = out["control"].get("growth_per_hour_fraction")
+    out["target"] = "no growth: fitted slope < 1% of the peak per hour"
+    out["met"] = growth is not None and growth < 0.01
+    return out
+
+
+# -------------------------------------------------------------------------------------- table
+def table(res: dict[str, Any]) -> list[dict[str, Any]]:
+    """One row per figure: value, the reference it is compared to, the ratio, the target and verdict."""
+    rows: list[dict[str, Any]] = []
+
+    def row(figure: str, value: str, reference: str, ratio: str, target: str = "", met: bool | None = None) -> None:
+        rows.append({"figure": figure, "value": value, "reference": reference, "ratio": ratio, "target": target,
+                     "met": met})
+
+    if "tick" in res:
+        t = res["tick"]
+        worst = max(("none", "coulomb", "stiction", "lugre"), key=lambda m: t[m]["p99_us"])
+        row(f"tick cost p99 (worst mode: {worst})", f"{t[worst]['p99_us']:.1f} µs", "1 kHz period 1000 µs",
+            f"{100 * t[worst]['p99_fraction_of_1kHz']:.1f}% of the period", "≤ 5%", t["met"])
+    if "closed_loop" in res:
+        c = res["closed_loop"]
+        a = c["at_1kHz"]
+        row(f"closed loop 1 kHz, {a['seconds']:g} s, --log: device rate", f"{a['device_rate_hz']:.1f} Hz", "1000 Hz",
+            f"{a['achieved_fraction']:.4f}×")
+        row("closed loop 1 kHz: deadline misses", f"{a['misses']} of {a['periods']}", "periods",
+            f"{a['miss_percent']:.2f}%", "< 0.1%", c["met"])
+        row("closed loop 1 kHz: latency sample→command p50 / p99", f"{a['latency_p50_us']:.0f} / {a['latency_p99_us']:.0f} µs",
+            "period 1000 µs", f"{100 * a['latency_p50_fraction']:.0f}% / {100 * a['latency_p99_fraction']:.0f}%")
+        at = c["attribution_1kHz"]
+        if at and a["misses"]:
+            row("closed loop 1 kHz: why the misses (the run's own log)",
+                f"{at['sample_reached_host_late']} SAMPLEs reached the host ≥ 1 period late", f"{a['misses']} misses",
+                f"{100 * at['sample_reached_host_late'] / a['misses']:.0f}% host reached late, "
+                f"{100 * (a['mock_missed_periods'] or 0) / a['misses']:.0f}% hil-mock's own overruns, "
+                f"{100 * at['return_path'] / a['misses']:.0f}% return path, "
+                f"{100 * at['host_compute_over_half_period'] / a['misses']:.1f}% host compute")
+        p = c["probes_1kHz"]
+        row(f"same machine, no furuta-rt ({p['wake']['periods'] / 1000:g} s each): SCHED_FIFO wake-ups / FIFO pair over "
+            "a socketpair / over a pty", " / ".join(f"{p[k]['miss_percent']:.2f}%" for k in ("wake", "socketpair", "pty")),
+            "periods", "deadline misses", "< 0.1%", all(p[k]["miss_percent"] < MISS_TARGET_PERCENT for k in p))
+        if "at_1kHz_without_log" in c:
+            b = c["at_1kHz_without_log"]
+            row(f"closed loop 1 kHz, {b['seconds']:g} s, without --log: deadline misses", f"{b['misses']} of {b['periods']}",
+                "periods", f"{b['miss_percent']:.2f}%", "< 0.1%", b["miss_percent"] < MISS_TARGET_PERCENT)
+        hi = c["highest_rate_under_0.1%_misses_hz"]
+        sweep = ", ".join(f"{int(r) / 1000:g} kHz {v['miss_percent']:.2f}%" for r, v in c["sweep"].items())
+        row("highest rate with < 0.1% misses", f"{hi} Hz" if hi else "none of the rates tried",
+            f"peers ~{c['peers_ceiling_hz']:.0f} Hz", f"{hi / c['peers_ceiling_hz']:.2f}×" if hi else f"misses: {sweep}")
+        ku = c["highest_rate_achieved_within_1%_hz"]
+        row("highest rate the pair keeps up with (device rate within 1%)", f"{ku} Hz" if ku else "none of the rates tried",
+            f"peers ~{c['peers_ceiling_hz']:.0f} Hz", f"{ku / c['peers_ceiling_hz']:.2f}×" if ku else "")
+    if "simulator" in res:
+        s = res["simulator"]
+        row("simulator, LuGre, 10 kHz substeps", f"{s['substeps_per_s']:.3g} steps/s", "real time",
+            f"{s['real_time_factor']:.1f}×")
+        cl = s["closed_loop_500Hz"]
+        row("simulator vs scipy, closed loop 500 Hz, same accuracy", f"{cl['ours_s']:.3f} s",
+            f"scipy LSODA {cl['scipy_s']:.3f} s", f"{cl['speedup_vs_scipy']:.1f}× faster")
+        if s.get("scipy_best"):
+            span = duration_of(s)
+            row("simulator vs scipy, free motion, same accuracy", f"{span:g} s in {span / s['real_time_factor']:.3f} s",
+                f"scipy {s['scipy_best']['method']} {s['scipy_best']['time_s']:.3f} s", f"{s['speedup_vs_scipy']:.2f}×")
+    if "mock" in res:
+        m = res["mock"]
+        row("hil-mock 1 kHz, LuGre, over a pty", f"{m['pty_real_time_factor']:.1f}× real time", "real time",
+            f"{m['pty_real_time_factor']:.1f}×", "≥ 20×", m["met"])
+        row("hil-mock 1 kHz, firmware tick in-process", f"{m['core_tick_us']:.0f} µs", "period 1000 µs",
+            f"{m['core_real_time_factor']:.1f}× (simulator alone {m['simulator_real_time_factor']:.1f}×)")
+    if "replay" in res:
+        r = res["replay"]
+        row(f"replay, {r['log_minutes']:g}-minute 1 kHz log (read + replay, CPU)", f"{r['read_cpu_s'] + r['replay_cpu_s']:.2f} s",
+            f"{r['log_minutes']:g} min of run", f"{r['x_real_time']:.0f}× real time", "≥ 200×", r["met"])
+        b = r["read_breakdown"]
+        row("replay: where read_log's time goes", f"JSON {100 * b['json_decode_share']:.0f}%",
+            "read_log CPU", f"zstd {100 * b['zstd_decompress_crc_share']:.0f}%, columns {100 * b['numpy_columns_share']:.0f}%, "
+            f"records {100 * b['file_records_slicing_share']:.0f}%")
+    if "logging" in res:
+        lg = res["logging"]
+        row("MCAP logging, control side per tick", f"{lg['control_side_us_per_tick']:.1f} µs", "period 1000 µs",
+            f"{100 * lg['control_side_fraction_of_period']:.2f}% of the period")
+        share = lg["writer_cpu_share"]
+        dshare = lg["daemon_1kHz"]["logger_cpu_share"]
+        dm = lg["tick_deadline_misses_percent"]
+        row("stand-in 1 kHz tick at SCHED_FIFO: deadline misses with / without the logging calls",
+            f"{dm['with_log']:.2f}% / {dm['without_log']:.2f}%", "periods", "")
+        row("MCAP writer process at 1 kHz (synthetic / in the daemon run)",
+            f"{100 * share:.1f}% / {100 * dshare:.1f}%" if share is not None and dshare is not None else "n/a",
+            "one core", f"{lg['writer_us_per_tick']:.0f} µs CPU per tick" if lg["writer_us_per_tick"] else "")
+    if "diagnose" in res:
+        d = res["diagnose"]
+        row("diagnose, 60 s 500 Hz recording", f"{d['max_seconds']:.1f} s", "target 20 s",
+            f"{d['fraction_of_target']:.2f} of the target, {d['x_real_time']:.0f}× real time", "≤ 20 s", d["met"])
+    if "memory" in res:
+        mm = res["memory"]
+        c = mm.get("control", {})
+        if "slope_kb_per_min" in c:
+            row(f"control process RSS over {mm['seconds'] / 60:g} min at 1 kHz",
+                f"peak {mm['control_peak_rss_kb'] / 1024:.1f} MB, slope {c['slope_kb_per_min']:+.1f} kB/min",
+                "peak RSS", f"{100 * c['growth_per_hour_fraction']:+.3f}% per hour", "no growth (< 1%/h)", mm["met"])
+    return rows
+
+
+def duration_of(sim: dict[str, Any]) -> float:
+    return float(re.search(r"(\d+(?:\.\d+)?) s$", sim["problem"]).group(1))  # type: ignore[union-attr]
+
+
+def print_table(rows: list[dict[str, Any]]) -> None:
+    """A Markdown table (copied as is into docs/PERFORMANCE.md)."""
+    print("| figure | value | compared to | ratio | target | met |")
+    print("|---|---|---|---|---|---|")
+    for r in rows:
+        met = "" if r["met"] is None else ("yes" if r["met"] else "**no**")
+        print(f"| {r['figure']} | {r['value']} | {r['reference']} | {r['ratio']} | {r['target']} | {met} |")
+
+
 def _fmt(v: Any) -> str:
     if isinstance(v, float):
         return f"{v:.4g}"
@@ -217,11 +1036,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", metavar="A,B", help=f"sections to run: {', '.join(SECTIONS)}")
     args = ap.parse_args(argv)
     names = args.only.split(",") if args.only else list(SECTIONS)
-    results: dict[str, Any] = {}
+    unknown = [n for n in names if n not in SECTIONS]
+    if unknown:
+        print(f"unknown section {unknown[0]!r}; known: {', '.join(SECTIONS)}", file=sys.stderr)
+        return 2
+    t_all = time.perf_counter()
+    info = machine()
+    print(f"scripts/bench{' --quick' if args.quick else ''} on {info['date']}: {info['cpus']} CPUs, load average "
+          f"{' '.join(map(str, info['loadavg']))}, kernel {info['kernel']} (preempt {info.get('preempt', '?')}, "
+          f"HZ {info.get('kernel_hz', '?')}{', under a hypervisor' if info.get('hypervisor') else ''}); "
+          f"{len(info['other_realtime_tasks'])} other real-time user processes running", flush=True)
+    results: dict[str, Any] = {"machine": info, "command": "scripts/bench" + (" --quick" if args.quick else "")}
     for name in names:
-        if name not in SECTIONS:
-            print(f"unknown section {name!r}; known: {', '.join(SECTIONS)}", file=sys.stderr)
-            return 2
         t0 = time.perf_counter()
         print(f"== {name}", flush=True)
         res = SECTIONS[name](args.quick)
@@ -229,11 +1055,25 @@ def main(argv: list[str] | None = None) -> int:
         results[name] = res
         for k, v in res.items():
             print(f"   {k:28s} {_fmt(v)}", flush=True)
+    results["table"] = table(results)
+    info["loadavg_end"] = [round(x, 2) for x in os.getloadavg()]
+    results["bench_seconds"] = time.perf_counter() - t_all
+    print(f"\n== table (load average at the end {' '.join(map(str, info['loadavg_end']))}; "
+          f"{results['bench_seconds']:.0f} s in all)")
+    print_table(results["table"])
     if args.json:
         with open(args.json, "w") as fh:
-            json.dump(results, fh, indent=2, default=float)
+            json.dump(results, fh, indent=2, default=_json_default)
     _ = statistics  # keep the import for sections that report medians
     return 0
+
+
+def _json_default(v: Any) -> Any:
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return float(v)
 
 
 if __name__ == "__main__":
