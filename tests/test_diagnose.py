@@ -121,6 +121,72 @@ def test_delay_and_gain_pair_found(rig, recordings) -> None:
     assert s.false == []
 
 
+@pytest.fixture(scope="module")
+def window_cases(rig, tmp_path_factory):
+    """Arm stiction, Coulomb friction alone (both without excitation: the arm parks in a stick–slip cycle) and a torque
+    limit that clips only the square wave's steps, 30 s each."""
+    cache = tmp_path_factory.mktemp("window-cases")
+    cases = {
+        "stiction": suite.Case("arm_stiction", ("arm_coulomb.Fc=0.05", "arm_stiction.Fs=0.08"), 58, None, 30.0),
+        "coulomb": suite.Case("arm_coulomb", ("arm_coulomb.Fc=0.03",), 11, None, 30.0),
+        "saturation": suite.Case("input_saturation", ("input_saturation.limit=0.5",), 57, "square", 30.0),
+    }
+    return {k: (c, suite.generate(c, rig, cache)) for k, c in cases.items()}
+
+
+def test_stiction_breakaway_torque_is_found(rig, window_cases) -> None:
+    """Eq. 2: the arm sticks until the held torque exceeds Fs = 0.08, slides against Fc = 0.05. The regression finds
+    the sliding level, the stick windows the breakaway torque, and the held-out fit improves."""
+    case, rec = window_cases["stiction"]
+    d = diagnose(rec, rig, FAST)
+    found = {e.name: e.params for e in d.effects}
+    assert set(found) == {"arm_coulomb", "arm_stiction"}
+    assert found["arm_coulomb"]["Fc"] == pytest.approx(0.05, rel=0.05)
+    assert found["arm_stiction"]["Fs"] == pytest.approx(0.08, rel=0.2)
+    assert next(e for e in d.effects if e.name == "arm_stiction").source == "stick windows"
+    assert "stays stuck until it holds Fs" in d.located
+    assert d.fit["augmented"] < d.fit["nominal"]
+    assert d.stick is not None and d.stick.fits["arm_stiction"].gain > 0.5
+    # the Effects vocabulary takes it back: the simulator sticks at the breakaway torque the tool reports
+    assert d.found_effects().arm_stiction.Fs == found["arm_stiction"]["Fs"]
+
+
+def test_coulomb_friction_alone_gets_no_stiction(rig, window_cases) -> None:
+    """With Fs = Fc the arm breaks away exactly when the command exceeds Fc: the stick windows add nothing."""
+    _, rec = window_cases["coulomb"]
+    d = diagnose(rec, rig, FAST)
+    assert d.names == ["arm_coulomb"]
+    assert d.stick is not None and not d.stick.added and len(d.stick.windows) >= 8
+
+
+def test_the_rigs_own_effects_are_part_of_the_nominal_model(rig, window_cases) -> None:
+    """A rig config that lists arm Coulomb friction: at the right level nothing is missing; at a wrong one the tool
+    reports the corrected total (the value to put in the config), not the difference."""
+    from furuta_rt.model.effects import effects_from_assignments
+
+    _, rec = window_cases["coulomb"]  # arm_coulomb.Fc = 0.03
+    right = rig.model_copy(update={"effects": effects_from_assignments(["arm_coulomb.Fc=0.03"])})
+    d = diagnose(rec, right, FAST)
+    assert d.names == []
+    assert "consistent with the nominal model" in d.located
+    wrong = rig.model_copy(update={"effects": effects_from_assignments(["arm_coulomb.Fc=0.02"])})
+    d = diagnose(rec, wrong, FAST)
+    assert d.names == ["arm_coulomb"]
+    assert d.effects[0].params["Fc"] == pytest.approx(0.03, rel=0.05)
+    assert d.fit["augmented"] < d.fit["nominal"]
+
+
+def test_torque_limit_hidden_from_the_regression_is_found(rig, window_cases) -> None:
+    """The clipped commands are the square wave's steps, which start from rest (rows the regression leaves out); the
+    arm's motion after them shows the limit."""
+    _, rec = window_cases["saturation"]
+    d = diagnose(rec, rig, FAST)
+    found = {e.name: e.params for e in d.effects}
+    assert set(found) == {"input_saturation"}
+    assert found["input_saturation"]["limit"] == pytest.approx(0.5, rel=0.2)
+    assert d.fit["augmented"] < d.fit["nominal"]
+
+
 def test_cli_diagnoses_a_default_rig_csv_without_config(recordings, tmp_path) -> None:
     _, rec = recordings["arm_coulomb"]
     path = tmp_path / "run.csv"

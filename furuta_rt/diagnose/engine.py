@@ -22,14 +22,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose import stickslip, verify
+from furuta_rt.diagnose import peaks, stickslip, verify
 from furuta_rt.diagnose.decay import DecayFit, DecayResult, free_decay, is_free_decay
 from furuta_rt.diagnose.fitting import Stats, fit, paired_t
-from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, Context
+from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, STILL_TICKS, Context
 from furuta_rt.diagnose.locate import Location, describe, locate
 from furuta_rt.diagnose.select import EquationModel, Evaluation, Spec, Thresholds
 from furuta_rt.diagnose.signals import GaussianFilter, Prepared, prepare
-from furuta_rt.model.effects import Effects
+from furuta_rt.model.effects import EFFECT_TYPES, Effects
 from furuta_rt.recording import Recording
 
 EXPERIMENTS: dict[frozenset[str], str] = {
@@ -113,7 +113,8 @@ class Diagnosis:
     decay: dict | None = None  # the free-decay analysis, when the recording is one
     decay_result: DecayResult | None = field(default=None, repr=False)
     prediction: dict = field(default_factory=dict, repr=False)  # starts, horizon, train effects (for figures)
-    stick: stickslip.StickSlip | None = field(default=None, repr=False)  # the stick–slip windows, when there are sticks
+    stick: stickslip.WindowStage | None = field(default=None, repr=False)  # the stick–slip windows, when there are sticks
+    peak: stickslip.WindowStage | None = field(default=None, repr=False)  # the command-peak windows, when they ran
 
     @property
     def names(self) -> list[str]:
@@ -139,6 +140,7 @@ class Diagnosis:
             ],
             "free_decay": self.decay,
             "stick_windows": self.stick.as_json() if self.stick is not None else None,
+            "peak_windows": self.peak.as_json() if self.peak is not None else None,
             "fit_details": {k: v for k, v in self.fit.items() if k not in ("metric", "nominal", "augmented")},
             "closed_loop": self.closed_loop,
             "equations": {
@@ -283,7 +285,8 @@ def gain_inertia_separation(em: EquationModel, selected: Evaluation, gain: float
         y, Xp = y * w, Xp * np.asarray(w)[:, None]
     f = fit(Stats.of(y, Xp, em.blocks))
     kappa, se = float(f.coef[-1]), max(float(f.se[-1]), 1e-12)
-    other = 1.0 - gain if gain_model else 1.0 - 1.0 / gain  # κ if the alternative is the truth
+    g = gain / ctx.known_gain  # the departure from the nominal model's gain
+    other = 1.0 - g if gain_model else 1.0 - 1.0 / g  # κ if the alternative is the truth
     z_sel, z_alt = abs(kappa) / se, abs(kappa - other) / se
     resolved = abs(other) >= SEPARATION_Z * se
     verdict = ("selected" if z_alt >= SEPARATION_Z and z_sel < CONSISTENT_Z else
@@ -375,6 +378,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
             found = [f for eq in res for f in _found(ems[eq], res[eq], [])] + kept
             notes.append(f"arm equation: with stiction, stays of ≥ {STICTION_STILL_TICKS} ticks at one encoder count are left "
                          f"out too (they may be short sticks); {em.n_rows} rows")
+    peak = _peak_windows(ctx, found, ems, res, opts) if opts.stick_windows else None
     ambiguities, lookalikes, swaps = check_lookalikes(ems, res, opts)
     for eq, alt in swaps.items():  # the look-alike test favours the alternative: it becomes the equation's model
         r = res[eq]
@@ -385,7 +389,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
         lookalikes += stick.lookalikes
     decay = free_decay(prep, rig) if is_free_decay(prep) else None
     if decay is not None:
-        found, ambiguities = _use_decay(decay, found, ambiguities, lookalikes)
+        found, ambiguities = _use_decay(decay, found, ambiguities, lookalikes, ctx.known)
     try:
         effects_of(found)
     except ValueError as err:  # e.g. a combination the effects vocabulary forbids
@@ -393,14 +397,16 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     located = "; ".join(describe(r.location, list(r.selected.spec.effects)) for r in res.values())
     if stick is not None:
         located += "; " + stickslip.describe(stick, {f.name: f.params for f in found})
+    if peak is not None and peak.added:
+        located += "; " + peaks.describe(peak)
     prediction: dict = {}
-    fit_summary = _prediction_metric(ctx, ems, res, rig, opts, notes, prediction, decay is not None, stick)
+    fit_summary = _prediction_metric(ctx, ems, res, rig, opts, notes, prediction, decay is not None, stick, peak)
     closed = _closed_loop(rec, rig, found, opts, notes) if opts.closed_loop else None
     return Diagnosis(
         effects=found, fit=fit_summary, located=located, ambiguities=ambiguities, lookalikes=lookalikes,
         equations=res, closed_loop=closed, notes=notes, seconds=time.perf_counter() - t0, rig=rig.name, context=ctx,
         models=ems, prediction=prediction, decay=decay.as_json() if decay is not None else None, decay_result=decay,
-        stick=stick,
+        stick=stick, peak=peak,
     )
 
 
@@ -410,7 +416,7 @@ def _select(ctx: Context, eq: str, opts: Options, rows: np.ndarray | None = None
     nominal, selected, trace = em.select()
     if selected.spec.effects:
         selected = refit(em, selected.spec)
-    loc = locate(ctx, eq, em.target(Spec(eq)), em.row_mask)
+    loc = locate(ctx, eq, em.target(em.spec0()), em.row_mask)
     return em, EquationResult(eq, em.n_rows, nominal, selected, trace, loc)
 
 
@@ -429,26 +435,60 @@ def _found(em: EquationModel, r: EquationResult, notes: list[str]) -> list[Found
                              "more than the library's range (treat it as a sign of other missing physics)")
         without = em.evaluate(ev.spec.without(name))
         gain = (without.cv - ev.cv) / without.cv if without.cv else 0.0
-        out.append(Found(name, r.equation, ev.params[name], ev.se.get(name, {}), float(ev.t_stat.get(name, 0.0)), gain))
+        params = _within_bounds(name, ev.params[name])
+        out.append(Found(name, r.equation, params, ev.se.get(name, {}), float(ev.t_stat.get(name, 0.0)), gain))
     return out
 
 
+def _within_bounds(name: str, params: dict[str, float]) -> dict[str, float]:
+    """Totals put back inside the vocabulary's bounds (≥ 0 where it says so): with the rig's own effect in the nominal
+    model, "the data has none of it" is a departure of −value, whose fit scatters around 0 either side."""
+    out = dict(params)
+    for key, info in EFFECT_TYPES[name].model_fields.items():
+        if key in out and any(getattr(m, "ge", None) == 0 for m in info.metadata):
+            out[key] = max(out[key], 0.0)
+    if name == "arm_spring" and out["k"] == 0.0:
+        out["phi0"] = 0.0  # no spring: its rest angle means nothing
+    return out
+
+
+def _support(em: EquationModel, selected: Evaluation, opts: Options, kind: str, value: float) -> float | None:
+    """The arm regression's held-out gain (on its sliding rows) when the command path's ``kind`` (delay, limit in
+    command units) is set to ``value`` in the selected model; None when the arm equation has too few rows."""
+    if em.n_rows < 20 * opts.thresholds.n_blocks or not selected.cv:
+        return None
+    name = {"delay": "input_delay", "limit": "input_saturation"}[kind]
+    spec = selected.spec if name in selected.spec.effects else selected.spec.with_effect(name)
+    ev = em.evaluate(spec.with_value(kind, value))
+    return (selected.cv - ev.cv) / selected.cv
+
+
+def _peak_windows(ctx: Context, found: list[Found], ems: dict[str, EquationModel], res: dict[str, EquationResult],
+                  opts: Options) -> stickslip.WindowStage | None:
+    """The command-peak stage (furuta_rt.diagnose.peaks): an actuator limit, when the arm regression did not see
+    most of the largest commands."""
+    current = {**ctx.known, **{f.name: f.params for f in found}}
+    if not ctx.prep.commanded or "input_saturation" in current or peaks.covered(ctx.prep, ems[ARM].row_mask) >= peaks.MIN_COVERED:
+        return None
+    gain = current.get("input_gain", {}).get("gain", ctx.known_gain)
+    peak = peaks.assess(ctx.rig, current, ctx.prep, ctx.fine, opts.thresholds, ctx.stays(STILL_TICKS), ctx.fine.phi_dot,
+                        lambda limit: _support(ems[ARM], res[ARM].selected, opts, "limit", limit / gain))
+    if peak is not None:
+        for name, params in peak.added.items():
+            f = peak.fits[name]
+            found.append(Found(name, ARM, params, {f.param: f.se}, f.t, f.gain, "peak windows"))
+    return peak
+
+
 def _stick_windows(ctx: Context, found: list[Found], ems: dict[str, EquationModel], res: dict[str, EquationResult],
-                   opts: Options) -> stickslip.StickSlip | None:
+                   opts: Options) -> stickslip.WindowStage | None:
     """The stick–slip stage (furuta_rt.diagnose.stickslip): with Coulomb friction found, the arm's sticks and
     breakaways decide on a breakaway torque above the sliding level and time the actuator."""
-    if not any(f.name == "arm_coulomb" for f in found):
+    current = {**ctx.known, **{f.name: f.params for f in found}}
+    if "arm_coulomb" not in current:
         return None
-    em, selected = ems[ARM], res[ARM].selected
-
-    def delay_support(delay: float) -> float | None:
-        if em.n_rows < 20 * opts.thresholds.n_blocks or not selected.cv:
-            return None
-        ev = em.evaluate(selected.spec.with_effect("input_delay").with_value("delay", delay))
-        return (selected.cv - ev.cv) / selected.cv
-
-    stick = stickslip.assess(ctx.rig, {f.name: f.params for f in found}, ctx.prep, ctx.fine, opts.thresholds,
-                             delay_support)
+    stick = stickslip.assess(ctx.rig, current, ctx.prep, ctx.fine, opts.thresholds,
+                             lambda d: _support(ems[ARM], res[ARM].selected, opts, "delay", d))
     if stick is not None:
         for name, params in stick.added.items():
             f = stick.fits[name]
@@ -470,13 +510,21 @@ def _decay_effects(fit: DecayFit) -> list[Found]:
     return out
 
 
+def _as_known(e: Found, known: dict[str, dict[str, float]]) -> bool:
+    """Whether a found effect is the rig's own, at its configured value (within two standard errors)."""
+    if e.name not in known:
+        return False
+    return all(abs(v - known[e.name].get(k, 0.0)) <= 2 * e.se.get(k, 0.0) for k, v in e.params.items())
+
+
 def _use_decay(
-    decay: DecayResult, found: list[Found], ambiguities: list[dict], lookalikes: list[dict]
+    decay: DecayResult, found: list[Found], ambiguities: list[dict], lookalikes: list[dict],
+    known: dict[str, dict[str, float]],
 ) -> tuple[list[Found], list[dict]]:
     """A free decay is the experiment that tells viscous from Coulomb pivot friction: its energy-per-cycle
     fit replaces the pendulum friction of the inverse-dynamics selection and settles their ambiguity."""
     f = {k: v.loo_rms for k, v in decay.fits.items()}
-    pend = _decay_effects(decay.fits[decay.best])
+    pend = [e for e in _decay_effects(decay.fits[decay.best]) if not _as_known(e, known)]
     found = [e for e in found if e.name not in PENDULUM_FRICTION] + pend
     ambiguities = [a for a in ambiguities if not set(a["effects"]) <= set(PENDULUM_FRICTION)]
     lookalikes.append({
@@ -491,7 +539,7 @@ def _use_decay(
 
 def _prediction_metric(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResult], rig: RigConfig,
                        opts: Options, notes: list[str], keep: dict, decay: bool = False,
-                       stick: stickslip.StickSlip | None = None) -> dict:
+                       stick: stickslip.WindowStage | None = None, peak: stickslip.WindowStage | None = None) -> dict:
     prep = ctx.prep
     horizon = max(5, round(opts.horizon / prep.dt))
     starts = _windows(prep, opts.holdout, horizon, opts.max_windows)
@@ -507,13 +555,15 @@ def _prediction_metric(ctx: Context, ems: dict[str, EquationModel], res: dict[st
             train = em
             notes.append(f"{eq} equation: too little data before the held-out part; the prediction uses all-data parameters")
         ev = refit(train, r.selected.spec)
-        train_found += [Found(n, eq, ev.params[n], {}, 0.0, 0.0) for n in ev.spec.effects]
-    if stick is not None and stick.added:  # the stick-window effects from the sticks before the held-out part
-        values = stickslip.values_before(stick, int(np.searchsorted(prep.t, split_t)))
-        if values is None:
-            values = stick.added
-            notes.append("too few sticks before the held-out part; the prediction uses all-data stick-window parameters")
-        train_found += [Found(n, ARM, p, {}, 0.0, 0.0) for n, p in values.items()]
+        train_found += [Found(n, eq, _within_bounds(n, ev.params[n]), {}, 0.0, 0.0) for n in ev.spec.effects]
+    for stage, least in ((stick, stickslip.MIN_WINDOWS), (peak, peaks.MIN_PEAK_WINDOWS)):
+        if stage is not None and stage.added:  # the window stages' effects from the windows before the held-out part
+            values = stickslip.values_before(stage, int(np.searchsorted(prep.t, split_t)), least)
+            if values is None:
+                values = stage.added
+                notes.append(f"too few windows before the held-out part for {', '.join(stage.added)}; the prediction "
+                             "uses its all-data parameters")
+            train_found += [Found(n, ARM, p, {}, 0.0, 0.0) for n, p in values.items()]
     if decay:  # the pivot friction from the cycles before the held-out part
         part = free_decay(prep, rig, stop_time=float(split_t))
         if part is not None:

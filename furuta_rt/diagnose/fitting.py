@@ -107,10 +107,10 @@ def fit(stats: Stats) -> Fit:
 
 
 def paired_t(a: np.ndarray, b: np.ndarray) -> float:
-    """Paired t statistic of a − b over blocks (inf when the differences do not vary)."""
+    """Paired t statistic of a − b over blocks (±inf when the differences do not vary, 0 when they are all 0)."""
     d = a - b
     sd = float(np.std(d, ddof=1)) if len(d) > 1 else 0.0
-    return float(np.sum(d) / (np.sqrt(len(d)) * sd)) if sd > 0 else np.inf
+    return float(np.sum(d) / (np.sqrt(len(d)) * sd)) if sd > 0 else float(np.sign(np.sum(d)) * np.inf if np.any(d) else 0.0)
 
 
 def vertex(x: np.ndarray, y: np.ndarray, i: int) -> float:

@@ -80,7 +80,7 @@ class Context:
 
     @classmethod
     def build(cls, prep: Prepared, rig: RigConfig, sigma_arm: float, sigma_pend: float, sigma_fine: float) -> Context:
-        model = RigModel.from_config(rig)
+        model = RigModel.from_config(rig)  # the rig with its own [effects]: the nominal model includes them
         return cls(
             prep=prep, rig=rig, plant=model.plant, model=model,
             arm=prep.states(sigma_arm), pend=prep.states(sigma_pend), fine=prep.states(sigma_fine),
@@ -89,16 +89,74 @@ class Context:
     def states(self, equation: str) -> States:
         return self.arm if equation == ARM else self.pend
 
+    # ------------------------------------------------------------------ the rig's own effects
+    @property
+    def known(self) -> dict[str, dict[str, float]]:
+        """The rig's own [effects] (part of the nominal model; diagnose reports what is still missing, as totals)."""
+        return self.rig.effects.present()
+
+    def known_value(self, name: str, param: str, default: float = 0.0) -> float:
+        return float(self.known.get(name, {}).get(param, default))
+
+    @cached_property
+    def known_gain(self) -> float:
+        return self.model.actuator.gain
+
+    @cached_property
+    def base_path(self) -> InputPath:
+        """The command path of the nominal model (the rig's own delay, deadzone, limit; in command units)."""
+        a, g = self.model.actuator, self.known_gain
+        return InputPath(delay=a.delay, deadzone=a.deadzone / g, limit=None if a.limit is None else a.limit / g)
+
+    @cached_property
+    def base_inertia(self) -> float:
+        """The arm inertia J of the nominal model (the rig's own arm_inertia effect, else the config's)."""
+        return self.known_value("arm_inertia", "J", self.rig.plant.arm_inertia)
+
     def inverse_dynamics(self, equation: str, plant: FurutaPlant | None = None, theta_shift: float = 0.0) -> np.ndarray:
+        """ID of eq. 4 on the filtered states, θ corrected by the rig's known sensor offset (and ``theta_shift``)."""
         s = self.states(equation)
         tp, ta = (plant or self.plant).inverse_dynamics(
-            s.theta - theta_shift, s.theta_dot, s.phi_dot, s.theta_ddot, s.phi_ddot
+            s.theta - self.model.theta_offset - theta_shift, s.theta_dot, s.phi_dot, s.theta_ddot, s.phi_ddot
         )
         return ta if equation == ARM else tp
 
+    @cached_property
+    def arm_known_friction(self) -> np.ndarray:
+        """K * (the torque of the rig's own arm friction and spring), from the shared laws: the sliding level for
+        Coulomb/stiction (the regression's rows are sliding), LuGre's bristle state integrated along the measured φ̇."""
+        a, f = self.arm, self.fine
+        out = np.zeros(self.prep.n)
+        fr = self.model.arm_friction
+        if fr.viscous is not None:
+            out += fr.viscous.torque(a.phi_dot)
+        if fr.dry is not None:
+            out += a.smooth(law_on_array(Coulomb(fr.dry.sliding_level).torque, self.arm_direction))
+        if fr.lugre is not None:
+            z, torque = 0.0, np.empty(self.prep.n)
+            for k, v in enumerate(f.phi_dot):
+                z, z_dot = fr.lugre.advance(z, float(v), self.prep.dt)
+                torque[k] = fr.lugre.torque(z, z_dot, float(v))
+            out += a.smooth(torque)
+        if self.model.spring_k:
+            out += -self.model.spring_k * (a.phi - self.model.spring_phi0)
+        return out
+
+    @cached_property
+    def pend_known_friction(self) -> np.ndarray:
+        """K * (the torque of the rig's own pendulum-pivot friction)."""
+        p, f = self.pend, self.fine
+        out = np.zeros(self.prep.n)
+        fr = self.model.pendulum_friction
+        if fr.viscous is not None:
+            out += fr.viscous.torque(p.theta_dot)
+        if fr.dry is not None:
+            out += p.smooth(law_on_array(fr.dry.torque, f.theta_dot))
+        return out
+
     # ------------------------------------------------------------------ the command torque
     def command_torque(self, path: InputPath, equation: str = ARM) -> np.ndarray:
-        """K * (torque the command produces through the actuator chain, before the gain)."""
+        """K * (torque the command produces through the actuator chain, with the rig's own gain)."""
         if equation == ARM and path in self._held:
             return self._held[path]
         shape_key = (path.deadzone, path.limit)
@@ -109,7 +167,7 @@ class Context:
             tau0 = piecewise_linear_on_array(lambda c: act.torque_terms(c)[0], self.prep.u, actuator_kinks(act))
             if len(self._tau0) < 256:
                 self._tau0[shape_key] = tau0
-        held = self.states(equation).held(tau0, self.prep.command_lag + path.delay)
+        held = self.known_gain * self.states(equation).held(tau0, self.prep.command_lag + path.delay)
         if equation == ARM and len(self._held) < 1024:
             self._held[path] = held
         return held
@@ -120,8 +178,9 @@ class Context:
         return self.model.actuator.torque_terms(0.0)[1]
 
     def arm_residual(self, path: InputPath, d_inertia: float = 0.0) -> np.ndarray:
-        """y_arm = ID_arm(J + ΔJ) + d·φ̇ − K*τ_command(path) (d: back-EMF damping of a DC motor)."""
-        y = self.arm_id + self.back_emf * self.arm.phi_dot - self.command_torque(path)
+        """y_arm = ID_arm(J + ΔJ) + d·φ̇ − K*τ_command(path) − K*τ_known (d: back-EMF damping of a DC motor, τ_known:
+        the rig's own arm friction and spring)."""
+        y = self.arm_id + self.back_emf * self.arm.phi_dot - self.command_torque(path) - self.arm_known_friction
         return y + d_inertia * self.arm_dJ if d_inertia else y
 
     @cached_property
@@ -158,6 +217,11 @@ class Context:
     @cached_property
     def pend_id(self) -> np.ndarray:
         return self.inverse_dynamics(PEND)
+
+    @cached_property
+    def pend_residual(self) -> np.ndarray:
+        """y_pend = ID_pend − K*τ_known (the rig's own pivot friction)."""
+        return self.pend_id - self.pend_known_friction
 
     # ------------------------------------------------------------------ masks
     @cached_property
@@ -281,26 +345,29 @@ class Candidate:
                 return ((up - down) / (2 * h))[:, None]
         return np.zeros((n, 0))
 
-    def params(self, coef: np.ndarray, path: InputPath, gain: float, rig: RigConfig, d_inertia: float = 0.0) -> dict[str, float]:
-        """SI parameters in the diagnose JSON names from the fitted coefficients."""
+    def params(self, coef: np.ndarray, path: InputPath, gain: float, ctx: Context, d_inertia: float = 0.0) -> dict[str, float]:
+        """SI parameters in the diagnose JSON names from the fitted coefficients: totals, the rig's own value of the
+        effect (if it has one) plus the departure the data asks for. ``gain``: the total input gain."""
+        k = ctx.known_value
         match self.name:
             case "arm_coulomb":
-                return {"Fc": float(coef[0])}
+                return {"Fc": k("arm_coulomb", "Fc") + float(coef[0])}
             case "arm_viscous":
-                return {"Fv": float(coef[0])}
+                return {"Fv": k("arm_viscous", "Fv") + float(coef[0])}
             case "arm_spring":
-                k = float(coef[0])
-                return {"k": k, "phi0": float(coef[1] / k) if k != 0 else 0.0}
+                k0, phi00 = k("arm_spring", "k"), k("arm_spring", "phi0")
+                kk = k0 + float(coef[0])
+                return {"k": kk, "phi0": (k0 * phi00 + float(coef[1])) / kk if kk != 0 else 0.0}
             case "arm_inertia":
-                return {"J": float(rig.plant.arm_inertia + d_inertia)}
+                return {"J": float(ctx.base_inertia + d_inertia)}
             case "input_gain":
-                return {"gain": float(1.0 + coef[0])}
+                return {"gain": float(ctx.known_gain * (1.0 + coef[0]))}
             case "pendulum_viscous":
-                return {"bp": float(coef[0])}
+                return {"bp": k("pendulum_viscous", "bp") + float(coef[0])}
             case "pendulum_coulomb":
-                return {"Fc": float(coef[0])}
+                return {"Fc": k("pendulum_coulomb", "Fc") + float(coef[0])}
             case "theta_offset":
-                return {"offset": float(coef[0])}
+                return {"offset": k("theta_offset", "offset") + float(coef[0])}
             case "input_delay":
                 return {"delay": float(path.delay)}
             case "input_deadzone":

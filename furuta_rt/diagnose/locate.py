@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from furuta_rt.diagnose.library import ARM, Context, InputPath
+from furuta_rt.diagnose.library import ARM, Context
 
 
 @dataclass
@@ -50,7 +50,7 @@ def _intervals(t: np.ndarray, flag: np.ndarray, min_gap: float) -> list[tuple[fl
 def features(ctx: Context, equation: str) -> dict[str, np.ndarray]:
     """The signals a residual is compared with (u: the command torque, seen through the same filter)."""
     s, f = ctx.states(equation), ctx.fine
-    command = ctx.command_torque(InputPath())
+    command = ctx.command_torque(ctx.base_path)
     return {
         "sgn(φ̇)": np.sign(f.phi_dot), "φ̇": s.phi_dot, "φ": s.phi, "u": command,
         "u̇": np.gradient(command, ctx.prep.dt), "φ̈": s.phi_ddot, "θ": s.theta, "θ̇": s.theta_dot,

@@ -33,6 +33,7 @@ class Spec:
     effects: tuple[str, ...] = ()
     path: InputPath = field(default_factory=InputPath)
     d_inertia: float = 0.0  # arm inertia change ΔJ (kg m²)
+    base: InputPath = field(default_factory=InputPath)  # the nominal command path (the rig's own effects)
 
     def with_value(self, kind: str, value: float) -> Spec:
         if kind == "inertia":
@@ -47,7 +48,7 @@ class Spec:
         rest = replace(self, effects=tuple(e for e in self.effects if e != name))
         if kind is None:
             return rest
-        return rest.with_value(kind, None if kind == "limit" else 0.0)  # type: ignore[arg-type]
+        return rest.with_value(kind, 0.0 if kind == "inertia" else getattr(self.base, kind))  # type: ignore[arg-type]
 
 
 @dataclass
@@ -86,6 +87,10 @@ class EquationModel:
         self.n_rows = len(self.blocks.rows)
         self.corr_len = ctx.states(equation).filt.sigma * 2.5 / ctx.prep.dt  # samples per independent residual
 
+    def spec0(self) -> Spec:
+        """The nominal model of this equation (with the rig's own command path)."""
+        return Spec(self.equation, path=self.ctx.base_path, base=self.ctx.base_path)
+
     @property
     def candidates(self) -> list[Candidate]:
         """This equation's candidates (the command path's only when there is a command)."""
@@ -96,7 +101,7 @@ class EquationModel:
         ]
 
     def target(self, spec: Spec) -> np.ndarray:
-        return self.ctx.arm_residual(spec.path, spec.d_inertia) if self.equation == ARM else self.ctx.pend_id
+        return self.ctx.arm_residual(spec.path, spec.d_inertia) if self.equation == ARM else self.ctx.pend_residual
 
     def design(self, spec: Spec) -> tuple[np.ndarray, list[tuple[str, slice]]]:
         cols, owners, k = [], [], 0
@@ -119,16 +124,16 @@ class EquationModel:
 
     def _finish(self, spec: Spec, f: Fit, owners: list[tuple[str, slice]], nl_folds: np.ndarray | None = None,
                 nl_name: str | None = None, nl_step: float = 0.0, nl_value: float = 0.0) -> Evaluation:
-        gain = 1.0
+        gain = self.ctx.known_gain
         for name, sl in owners:
             if name == "input_gain":
-                gain = 1.0 + float(f.coef[sl][0])
+                gain = self.ctx.known_gain * (1.0 + float(f.coef[sl][0]))
         params, tstat, se = {}, {}, {}
         for name in spec.effects:
             cand = CANDIDATES[name]
             sl = dict(owners).get(name)
             coef = f.coef[sl] if sl is not None else np.zeros(0)
-            params[name] = cand.params(coef, spec.path, gain, self.ctx.rig, spec.d_inertia)
+            params[name] = cand.params(coef, spec.path, gain, self.ctx, spec.d_inertia)
             if sl is not None:
                 err = f.se[sl]
                 tstat[name] = abs(float(coef[0])) / max(float(err[0]), 1e-300)
@@ -138,7 +143,9 @@ class EquationModel:
             spread = float(np.sqrt((B - 1) / B * np.sum((nl_folds - nl_folds.mean()) ** 2)))
             err = max(spread, 0.5 * nl_step)
             # significance of the departure from nominal (ΔJ, delay, width); a limit is judged by CV alone
-            tstat[nl_name] = np.inf if nl_name == "input_saturation" else abs(nl_value) / max(err, 1e-300)
+            kind = CANDIDATES[nl_name].nonlinear
+            null = 0.0 if kind == "inertia" else getattr(self.spec0().path, kind) or 0.0  # type: ignore[arg-type]
+            tstat[nl_name] = np.inf if nl_name == "input_saturation" else abs(nl_value - null) / max(err, 1e-300)
             se[nl_name] = {next(iter(params[nl_name])): err}
         return Evaluation(spec, f, params, tstat, se)
 
@@ -168,8 +175,8 @@ class EquationModel:
             return np.linspace(0.0, float(np.quantile(u, 0.8)), 41)
         if kind == "limit":
             return np.linspace(float(np.quantile(u, 0.6)), float(u.max()) * 1.001, 31)
-        if kind == "inertia":  # J_true / J_config from 0.3 to 3 in 0.5 % steps
-            J = self.ctx.rig.plant.arm_inertia
+        if kind == "inertia":  # J_true / J_nominal from 0.3 to 3 in 0.5 % steps
+            J = self.ctx.base_inertia
             return J * (np.exp(np.arange(np.log(0.3), np.log(3.0), 0.005)) - 1.0)
         raise KeyError(kind)
 
@@ -204,7 +211,7 @@ class EquationModel:
 
     def select(self, allowed: set[str] | None = None) -> tuple[Evaluation, Evaluation, list[dict]]:
         """(nominal evaluation, selected evaluation, trace of the steps)."""
-        nominal = self.evaluate(Spec(self.equation))
+        nominal = self.evaluate(self.spec0())
         current = nominal
         trace: list[dict] = []
         if self.n_rows < 20 * self.th.n_blocks:

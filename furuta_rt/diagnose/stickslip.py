@@ -14,8 +14,9 @@ WINDOW_TAIL past it. The pendulum is teacher-forced: θ and θ̇ are reset to th
 tick (upright, the pendulum is unstable, and left alone it would leave the data within tenths of a
 second; its effect on the arm is small, but it must be the data's). The arm is simulated by
 furuta_rt.sim.simulator.Simulator with the recorded commands — eq. 4, the set-valued friction law and the
-actuator chain of the shared model. A window's error is the squared arm-angle error beyond one encoder
-count (motion within a count is invisible to the encoder), summed over its ticks.
+actuator chain of the shared model. A window's error is the squared distance of the simulated arm angle from
+the measured encoder cells (the count ± half a count), summed over its ticks, with the unknown position inside
+the first cell profiled out: motion within a count is invisible to the encoder, and counts as no error.
 
 Parameters are chosen on these windows the way the regression chooses nonlinear ones
 (furuta_rt.diagnose.fitting): on a grid, with blocked cross-validation over windows in time order (each
@@ -53,9 +54,10 @@ DELAYS = (0.0, 0.001, 0.002, 0.003, 0.004, 0.006, 0.008, 0.011)
 
 @dataclass(frozen=True)
 class Window:
-    start: int  # sample the simulation starts from (inside the stick)
+    start: int  # sample the simulation starts from
     horizon: int  # ticks simulated
-    stick_end: int  # first sample at a new count
+    stick_end: int  # first sample at a new count (stick windows)
+    phi_dot: float = 0.0  # the arm's velocity at the start (0: at rest, in a stick)
 
 
 def stick_runs(prep: Prepared) -> list[tuple[int, int]]:
@@ -80,9 +82,9 @@ def windows(prep: Prepared) -> list[Window]:
 
 
 def simulate_arm(model: RigModel, prep: Prepared, fine: States, w: Window, substep_hz: float = SUBSTEP_HZ) -> np.ndarray:
-    """φ over ticks w.start+1 … w.start+w.horizon: the arm simulated from rest, the pendulum teacher-forced."""
+    """φ over ticks w.start+1 … w.start+w.horizon: the arm simulated from ``w.phi_dot``, the pendulum teacher-forced."""
     k = w.start
-    sim = start_simulator(model, prep, fine, k, 1.0 / prep.dt, substep_hz, at_rest=True)
+    sim = start_simulator(model, prep, fine, k, 1.0 / prep.dt, substep_hz, phi_dot=w.phi_dot)
     D = round(prep.command_lag / prep.dt)
     out = np.empty(w.horizon)
     for j in range(w.horizon):
@@ -96,7 +98,8 @@ def simulate_arm(model: RigModel, prep: Prepared, fine: States, w: Window, subst
 
 def window_errors(rig: RigConfig, effects: Effects, prep: Prepared, fine: States, wins: list[Window],
                   substep_hz: float = SUBSTEP_HZ) -> np.ndarray:
-    """Per window: Σ (|φ_sim − φ| − one count)₊² over its ticks (rad²)."""
+    """Per window: Σ (|φ_sim + δ − φ| − half a count)₊² over its ticks (rad²), minimised over the start's position δ
+    within its count."""
     model = RigModel.from_config(quiet(rig), effects)
     out = np.empty(len(wins))
     shifts = np.linspace(-0.5, 0.5, 11)[:, None] * prep.phi_lsb
@@ -123,6 +126,7 @@ class WindowFit:
     base_blocks: np.ndarray  # error per block of the model without the effect
     step: float  # local grid step at the optimum
     support: float | None = None  # input_delay: held-out gain of the arm regression (sliding rows) at this delay
+    paired: bool = False  # significance by the blocks' paired improvement (a limit has no "departure" to test)
 
     @property
     def cv(self) -> float:
@@ -144,6 +148,8 @@ class WindowFit:
 
     @property
     def t(self) -> float:
+        if self.paired:
+            return paired_t(self.base_blocks, self.cv_blocks)
         return abs(self.value - self.null) / self.se
 
     def accepted(self, th: Thresholds) -> bool:
@@ -202,8 +208,8 @@ def profile(name: str, param: str, errors_of: Callable[[float], np.ndarray], gri
 
 # ------------------------------------------------------------------------------------ the stage
 @dataclass
-class StickSlip:
-    """What the stick windows say: the effects they add, look-alikes, and the numbers behind them."""
+class WindowStage:
+    """What a window stage says: the effects it adds, look-alikes, and the numbers behind them."""
 
     windows: list[Window]
     added: dict[str, dict[str, float]] = field(default_factory=dict)
@@ -239,7 +245,7 @@ def _profile(name: str, current: dict[str, dict[str, float]], base: np.ndarray,
 
 
 def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, fine: States, th: Thresholds,
-           delay_support: Callable[[float], float | None], wins: list[Window] | None = None) -> StickSlip | None:
+           delay_support: Callable[[float], float | None], wins: list[Window] | None = None) -> WindowStage | None:
     """Forward selection of arm_stiction (on top of Coulomb friction) and input_delay (when none was found) on the
     stick windows, starting from the effects ``found``. None when there are too few sticks.
 
@@ -249,7 +255,7 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
     wins = windows(prep) if wins is None else wins
     if len(wins) < MIN_WINDOWS or "arm_coulomb" not in found:
         return None
-    out = StickSlip(wins)
+    out = WindowStage(wins)
     current = dict(found)
 
     def errors(eff: dict[str, dict[str, float]]) -> np.ndarray:
@@ -277,16 +283,16 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
     return out
 
 
-def values_before(out: StickSlip, stop: int) -> dict[str, dict[str, float]] | None:
-    """The stick-window effects' parameters chosen on the windows that end before sample ``stop`` only (None when
-    there are too few of them)."""
+def values_before(out: WindowStage, stop: int, min_windows: int = MIN_WINDOWS) -> dict[str, dict[str, float]] | None:
+    """The stage's effects' parameters chosen on the windows that end before sample ``stop`` only (None when there
+    are fewer than ``min_windows`` of them)."""
     mask = np.array([w.start + w.horizon < stop for w in out.windows])
-    if mask.sum() < MIN_WINDOWS:
+    if mask.sum() < min_windows:
         return None
     return {name: {f.param: f.value_on(mask)} for name, f in out.fits.items()}
 
 
-def _lookalikes(out: StickSlip, first: dict[str, WindowFit], th: Thresholds, rel_apart: float = 0.01,
+def _lookalikes(out: WindowStage, first: dict[str, WindowFit], th: Thresholds, rel_apart: float = 0.01,
                 t_apart: float = 3.0) -> None:
     """A breakaway torque and a transport delay both move the breakaways: when one was selected, the other in
     its place (from the same starting model) is compared on the held-out blocks."""
@@ -316,7 +322,7 @@ def _lookalikes(out: StickSlip, first: dict[str, WindowFit], th: Thresholds, rel
         out.lookalikes.append({"effects": pair, "reported": name, "reason": why, "experiment": EXPERIMENT})
 
 
-def describe(out: StickSlip, found: dict[str, dict[str, float]]) -> str:
+def describe(out: WindowStage, found: dict[str, dict[str, float]]) -> str:
     """One sentence: what the stick windows say."""
     n = len(out.windows)
     if not out.added:

@@ -34,11 +34,12 @@ def quiet(rig: RigConfig) -> RigConfig:
 
 
 def start_simulator(model: RigModel, prep: Prepared, fine: States, k: int, rate: float, substep_hz: float,
-                    at_rest: bool = False) -> Simulator:
+                    phi_dot: float | None = None) -> Simulator:
     """A Simulator in the reconstructed state of sample k, its filter and delay line primed from the data;
-    ``at_rest``: the arm starts at rest (φ̇ = 0, so a friction law with a stick limit holds it)."""
-    phi_dot = 0.0 if at_rest else float(fine.phi_dot[k])
-    x0 = (float(fine.theta[k] - model.theta_offset), float(fine.theta_dot[k]), float(prep.phi[k]), phi_dot)
+    ``phi_dot``: the arm's starting velocity instead of the reconstructed one (0: at rest, so a friction law with a
+    stick limit holds it)."""
+    v = float(fine.phi_dot[k]) if phi_dot is None else phi_dot
+    x0 = (float(fine.theta[k] - model.theta_offset), float(fine.theta_dot[k]), float(prep.phi[k]), v)
     sim = Simulator(model, rate, substep_hz, seed=0, x0=x0)
     if model.bessel is not None:  # the analog filter's own state: the measured θ_f, θ̇_f (lightly smoothed)
         sim.y = float(fine.smooth(prep.theta_f)[k])
