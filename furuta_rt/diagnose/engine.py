@@ -367,17 +367,20 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
                    if eq == ARM else "")
             )
     found = [f for eq in res for f in _found(ems[eq], res[eq], notes)]
-    stick = _stick_windows(ctx, found, ems, res, opts) if opts.stick_windows else None
-    if stick is not None and "arm_stiction" in stick.added:
+    stick = _stick_windows(ctx, found, ems, res, opts, lugre=False) if opts.stick_windows else None
+    if stick is not None and {"arm_stiction", "arm_lugre"} & set(stick.added):
         # with a breakaway torque above the sliding level the arm may also stick briefly at reversals, where its
         # friction is the held torque, not ±Fc: the arm regression is redone without any short stay at one count
+        # (and the stick windows are read again on top of the sliding level found there)
         em, r = _select(ctx, ARM, opts, ctx.clear_of(ctx.stays(STICTION_STILL_TICKS)))
         if "arm_coulomb" in r.selected.spec.effects and em.n_rows >= 20 * opts.thresholds.n_blocks:
             ems[ARM], res[ARM] = em, r
-            kept = [f for f in found if f.source == "stick windows"]
-            found = [f for eq in res for f in _found(ems[eq], res[eq], [])] + kept
-            notes.append(f"arm equation: with stiction, stays of ≥ {STICTION_STILL_TICKS} ticks at one encoder count are left "
-                         f"out too (they may be short sticks); {em.n_rows} rows")
+            found = [f for eq in res for f in _found(ems[eq], res[eq], [])]
+            notes.append(f"arm equation: with a breakaway above the sliding level, stays of ≥ {STICTION_STILL_TICKS} ticks at "
+                         f"one encoder count are left out too (they may be short sticks); {em.n_rows} rows")
+        else:
+            found = [f for f in found if f.source != "stick windows"]
+        stick = _stick_windows(ctx, found, ems, res, opts, only=set(stick.added))
     peak = _peak_windows(ctx, found, ems, res, opts) if opts.stick_windows else None
     ambiguities, lookalikes, swaps = check_lookalikes(ems, res, opts)
     for eq, alt in swaps.items():  # the look-alike test favours the alternative: it becomes the equation's model
@@ -425,10 +428,12 @@ def _found(em: EquationModel, r: EquationResult, notes: list[str]) -> list[Found
     out = []
     ev = r.selected
     for name in ev.spec.effects:
+        if name in LUGRE_CONTAINS and "arm_lugre" in ev.spec.effects:
+            continue  # arm_lugre carries the Coulomb level and the viscous term
         kind = CANDIDATES[name].nonlinear
         if kind is not None:
             grid = em.grid(kind)
-            value = ev.spec.d_inertia if kind == "inertia" else getattr(ev.spec.path, kind)
+            value = {"inertia": ev.spec.d_inertia, "vs": ev.spec.vs}.get(kind, getattr(ev.spec.path, kind, None))
             step = float(np.median(np.diff(grid)))
             if value is not None and (value <= grid[0] + step or value >= grid[-1] - step):
                 notes.append(f"{name}: {ev.params[name]} is at the edge of the range searched; the data asks for "
@@ -438,6 +443,9 @@ def _found(em: EquationModel, r: EquationResult, notes: list[str]) -> list[Found
         params = _within_bounds(name, ev.params[name])
         out.append(Found(name, r.equation, params, ev.se.get(name, {}), float(ev.t_stat.get(name, 0.0)), gain))
     return out
+
+
+LUGRE_CONTAINS = ("arm_coulomb", "arm_viscous")
 
 
 def _within_bounds(name: str, params: dict[str, float]) -> dict[str, float]:
@@ -481,15 +489,16 @@ def _peak_windows(ctx: Context, found: list[Found], ems: dict[str, EquationModel
 
 
 def _stick_windows(ctx: Context, found: list[Found], ems: dict[str, EquationModel], res: dict[str, EquationResult],
-                   opts: Options) -> stickslip.WindowStage | None:
+                   opts: Options, only: set[str] | None = None, lugre: bool = True) -> stickslip.WindowStage | None:
     """The stick–slip stage (furuta_rt.diagnose.stickslip): with Coulomb friction found, the arm's sticks and
     breakaways decide on a breakaway torque above the sliding level and time the actuator."""
     current = {**ctx.known, **{f.name: f.params for f in found}}
     if "arm_coulomb" not in current:
         return None
     stick = stickslip.assess(ctx.rig, current, ctx.prep, ctx.fine, opts.thresholds,
-                             lambda d: _support(ems[ARM], res[ARM].selected, opts, "delay", d))
+                             lambda d: _support(ems[ARM], res[ARM].selected, opts, "delay", d), only=only, lugre=lugre)
     if stick is not None:
+        found[:] = [f for f in found if f.name not in stick.replaces]
         for name, params in stick.added.items():
             f = stick.fits[name]
             found.append(Found(name, ARM, params, {f.param: f.se}, f.t, f.gain, "stick windows"))
@@ -555,7 +564,8 @@ def _prediction_metric(ctx: Context, ems: dict[str, EquationModel], res: dict[st
             train = em
             notes.append(f"{eq} equation: too little data before the held-out part; the prediction uses all-data parameters")
         ev = refit(train, r.selected.spec)
-        train_found += [Found(n, eq, _within_bounds(n, ev.params[n]), {}, 0.0, 0.0) for n in ev.spec.effects]
+        train_found += [Found(n, eq, _within_bounds(n, ev.params[n]), {}, 0.0, 0.0) for n in ev.spec.effects
+                        if not (n in LUGRE_CONTAINS and "arm_lugre" in ev.spec.effects)]
     for stage, least in ((stick, stickslip.MIN_WINDOWS), (peak, peaks.MIN_PEAK_WINDOWS)):
         if stage is not None and stage.added:  # the window stages' effects from the windows before the held-out part
             values = stickslip.values_before(stage, int(np.searchsorted(prep.t, split_t)), least)
@@ -563,6 +573,7 @@ def _prediction_metric(ctx: Context, ems: dict[str, EquationModel], res: dict[st
                 values = stage.added
                 notes.append(f"too few windows before the held-out part for {', '.join(stage.added)}; the prediction "
                              "uses its all-data parameters")
+            train_found = [f for f in train_found if f.name not in stage.replaces]
             train_found += [Found(n, ARM, p, {}, 0.0, 0.0) for n, p in values.items()]
     if decay:  # the pivot friction from the cycles before the held-out part
         part = free_decay(prep, rig, stop_time=float(split_t))

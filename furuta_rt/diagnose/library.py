@@ -22,7 +22,7 @@ import numpy as np
 from furuta_rt.config import RigConfig
 from furuta_rt.diagnose.signals import Prepared, States
 from furuta_rt.model.actuator import Actuator
-from furuta_rt.model.friction import Coulomb, Viscous
+from furuta_rt.model.friction import Coulomb, LuGre, Viscous
 from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.rig import PENDULUM_COULOMB_EPSILON, RigModel
 
@@ -141,6 +141,26 @@ class Context:
         if self.model.spring_k:
             out += -self.model.spring_k * (a.phi - self.model.spring_phi0)
         return out
+
+    def lugre_params(self, params: dict[str, dict[str, float]], vs: float) -> dict[str, float]:
+        """arm_lugre in the vocabulary from the regression's Coulomb level, viscous term and Stribeck peak; σ0 and σ1
+        from the rig's [compensation.lugre] (the presliding displacement Fc/σ0 is far below one encoder count)."""
+        cfg = self.rig.compensation.lugre
+        fc = params.get("arm_coulomb", {}).get("Fc", self.known_value("arm_coulomb", "Fc"))
+        fv = params.get("arm_viscous", {}).get("Fv", self.known_value("arm_viscous", "Fv"))
+        peak = params["arm_lugre"].get("Fs_minus_Fc", 0.0)
+        return {"sigma0": cfg.sigma0, "sigma1": cfg.sigma1, "Fc": fc, "Fs": fc + peak, "vs": vs, "Fv": max(fv, 0.0)}
+
+    def stribeck(self, vs: float) -> np.ndarray:
+        """K * (the Stribeck part of LuGre's steady-state friction, eq. 3 at constant speed, per unit Fs − Fc): the
+        torque −e^(−(v/vs)²)·sgn v, from LuGre.steady_state_force; the direction from the encoder counts, the speed
+        through the arm kernel (the narrow one does not resolve slow motion)."""
+        key = f"stribeck:{vs:.6g}"
+        if key not in self._columns:
+            law = LuGre(sigma0=1.0, sigma1=0.0, Fc=0.0, Fs=1.0, vs=vs)
+            v = self.arm_direction * np.abs(self.arm.phi_dot)
+            self._columns[key] = self.arm.smooth(law_on_array(lambda x: -law.steady_state_force(x), v))
+        return self._columns[key]
 
     @cached_property
     def pend_known_friction(self) -> np.ndarray:
@@ -313,12 +333,15 @@ class Candidate:
     equation: str
     main: str  # the parameter that measures its size
     lookalikes: tuple[str, ...] = ()
-    nonlinear: str | None = None  # "delay" | "deadzone" | "limit" (command path) or "inertia" (ΔJ)
+    nonlinear: str | None = None  # "delay" | "deadzone" | "limit" (command path), "inertia" (ΔJ), "vs" (Stribeck)
+    requires: str | None = None  # an effect that must be in the model first
 
-    def columns(self, ctx: Context, path: InputPath) -> np.ndarray:
+    def columns(self, ctx: Context, path: InputPath, vs: float = 0.0) -> np.ndarray:
         """(n, k) regressors for this effect's linear parameters (k = 0 for pure input-path effects)."""
         if self.name == "input_gain":
             return ctx.command_torque(path)[:, None]
+        if self.name == "arm_lugre":
+            return ctx.stribeck(vs)[:, None]
         cached = ctx._columns.get(self.name)
         if cached is None:
             cached = ctx._columns[self.name] = self._columns(ctx)
@@ -368,6 +391,8 @@ class Candidate:
                 return {"Fc": k("pendulum_coulomb", "Fc") + float(coef[0])}
             case "theta_offset":
                 return {"offset": k("theta_offset", "offset") + float(coef[0])}
+            case "arm_lugre":  # the Stribeck peak above the sliding level; completed with Fc, Fv by the caller
+                return {"Fs_minus_Fc": float(coef[0])}
             case "input_delay":
                 return {"delay": float(path.delay)}
             case "input_deadzone":
@@ -391,6 +416,8 @@ class Candidate:
                 return par["delay"] > 0
             case "theta_offset":
                 return abs(par["offset"]) < 0.3
+            case "arm_lugre":
+                return par.get("Fs_minus_Fc", par.get("Fs", 0.0) - par.get("Fc", 0.0)) > 0
         return True
 
 
@@ -407,6 +434,7 @@ CANDIDATES: dict[str, Candidate] = {
         Candidate("input_delay", ARM, "delay", nonlinear="delay"),
         Candidate("input_deadzone", ARM, "width", lookalikes=("arm_coulomb",), nonlinear="deadzone"),
         Candidate("input_saturation", ARM, "limit", nonlinear="limit"),
+        Candidate("arm_lugre", ARM, "Fs", nonlinear="vs", requires="arm_coulomb"),
         Candidate("pendulum_viscous", PEND, "bp", lookalikes=("pendulum_coulomb",)),
         Candidate("pendulum_coulomb", PEND, "Fc", lookalikes=("pendulum_viscous",)),
         Candidate("theta_offset", PEND, "offset", lookalikes=("arm_spring",)),

@@ -33,11 +33,14 @@ class Spec:
     effects: tuple[str, ...] = ()
     path: InputPath = field(default_factory=InputPath)
     d_inertia: float = 0.0  # arm inertia change ΔJ (kg m²)
+    vs: float = 0.0  # Stribeck speed of arm_lugre (rad/s)
     base: InputPath = field(default_factory=InputPath)  # the nominal command path (the rig's own effects)
 
     def with_value(self, kind: str, value: float) -> Spec:
         if kind == "inertia":
             return replace(self, d_inertia=value)
+        if kind == "vs":
+            return replace(self, vs=value)
         return replace(self, path=replace(self.path, **{kind: value}))
 
     def with_effect(self, name: str) -> Spec:
@@ -48,7 +51,7 @@ class Spec:
         rest = replace(self, effects=tuple(e for e in self.effects if e != name))
         if kind is None:
             return rest
-        return rest.with_value(kind, 0.0 if kind == "inertia" else getattr(self.base, kind))  # type: ignore[arg-type]
+        return rest.with_value(kind, 0.0 if kind in ("inertia", "vs") else getattr(self.base, kind))  # type: ignore[arg-type]
 
 
 @dataclass
@@ -106,7 +109,7 @@ class EquationModel:
     def design(self, spec: Spec) -> tuple[np.ndarray, list[tuple[str, slice]]]:
         cols, owners, k = [], [], 0
         for name in spec.effects:
-            X = CANDIDATES[name].columns(self.ctx, spec.path)
+            X = CANDIDATES[name].columns(self.ctx, spec.path, spec.vs)
             if X.shape[1]:
                 cols.append(X)
                 owners.append((name, slice(k, k + X.shape[1])))
@@ -137,16 +140,22 @@ class EquationModel:
             if sl is not None:
                 err = f.se[sl]
                 tstat[name] = abs(float(coef[0])) / max(float(err[0]), 1e-300)
-                se[name] = {k: float(e) for k, e in zip(params[name], err, strict=False)}
+                keys = ["Fs"] if name == "arm_lugre" else params[name]
+                se[name] = {k: float(e) for k, e in zip(keys, err, strict=False)}
+        if "arm_lugre" in params:  # the Stribeck peak on top of the Coulomb level (and viscous term) of the same fit
+            params["arm_lugre"] = self.ctx.lugre_params(params, spec.vs)
         if nl_name is not None and nl_folds is not None:
             B = len(nl_folds)
             spread = float(np.sqrt((B - 1) / B * np.sum((nl_folds - nl_folds.mean()) ** 2)))
             err = max(spread, 0.5 * nl_step)
             # significance of the departure from nominal (ΔJ, delay, width); a limit is judged by CV alone
             kind = CANDIDATES[nl_name].nonlinear
-            null = 0.0 if kind == "inertia" else getattr(self.spec0().path, kind) or 0.0  # type: ignore[arg-type]
-            tstat[nl_name] = np.inf if nl_name == "input_saturation" else abs(nl_value - null) / max(err, 1e-300)
-            se[nl_name] = {next(iter(params[nl_name])): err}
+            if kind == "vs":  # LuGre's size is its Stribeck peak (linear, judged above); vs only shapes it
+                se[nl_name] = {**se.get(nl_name, {}), "vs": err}
+            else:
+                null = 0.0 if kind == "inertia" else getattr(self.spec0().path, kind) or 0.0  # type: ignore[arg-type]
+                tstat[nl_name] = np.inf if nl_name == "input_saturation" else abs(nl_value - null) / max(err, 1e-300)
+                se[nl_name] = {next(iter(params[nl_name])): err}
         return Evaluation(spec, f, params, tstat, se)
 
     def residual(self, spec: Spec, coef: np.ndarray | None = None) -> np.ndarray:
@@ -175,6 +184,8 @@ class EquationModel:
             return np.linspace(0.0, float(np.quantile(u, 0.8)), 41)
         if kind == "limit":
             return np.linspace(float(np.quantile(u, 0.6)), float(u.max()) * 1.001, 31)
+        if kind == "vs":  # Stribeck speed, rad/s
+            return np.geomspace(0.01, 1.0, 21)
         if kind == "inertia":  # J_true / J_nominal from 0.3 to 3 in 0.5 % steps
             J = self.ctx.base_inertia
             return J * (np.exp(np.arange(np.log(0.3), np.log(3.0), 0.005)) - 1.0)
@@ -220,7 +231,8 @@ class EquationModel:
         while True:
             best: tuple[float, Evaluation, str] | None = None
             for name in names:
-                if name in current.spec.effects:
+                need = CANDIDATES[name].requires
+                if name in current.spec.effects or (need is not None and need not in current.spec.effects):
                     continue
                 ev = self.evaluate_with(current.spec, name)
                 gain = (current.cv - ev.cv) / current.cv

@@ -27,7 +27,7 @@ BIC penalty on the number of windows, significance of the departure from the mod
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -50,6 +50,13 @@ SUBSTEP_HZ = 2000.0  # the delay line's resolution is one substep
 # grids: breakaway torque as a multiple of the sliding level; transport delay in s
 STICTION_RATIOS = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)
 DELAYS = (0.0, 0.001, 0.002, 0.003, 0.004, 0.006, 0.008, 0.011)
+REL_APART, T_APART = 0.01, 3.0  # look-alikes told apart: by ≥ 1 % and consistently, or by ≥ 10 % (as in the engine)
+LUGRE_VS_RATIOS = (0.2, 0.5, 1.0, 2.0, 4.0)  # Stribeck speed, times the rig's [compensation.lugre] vs
+LUGRE_EXPERIMENT = (
+    "a slow constant-velocity arm sweep at several speeds around vs (LuGre's friction falls from Fs to Fc over "
+    "the speed vs, set-valued stiction drops at once) or small torque steps below the breakaway (LuGre creeps, "
+    "stiction holds)"
+)
 
 
 @dataclass(frozen=True)
@@ -217,6 +224,7 @@ class WindowStage:
     tried: list[dict] = field(default_factory=list)
     ambiguities: list[dict] = field(default_factory=list)
     lookalikes: list[dict] = field(default_factory=list)
+    replaces: list[str] = field(default_factory=list)  # found effects the stage's model takes the place of
 
     def as_json(self) -> dict:
         return {"windows": len(self.windows), "added": self.added, "tried": self.tried}
@@ -245,9 +253,12 @@ def _profile(name: str, current: dict[str, dict[str, float]], base: np.ndarray,
 
 
 def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, fine: States, th: Thresholds,
-           delay_support: Callable[[float], float | None], wins: list[Window] | None = None) -> WindowStage | None:
+           delay_support: Callable[[float], float | None], wins: list[Window] | None = None,
+           only: set[str] | None = None, lugre: bool = True) -> WindowStage | None:
     """Forward selection of arm_stiction (on top of Coulomb friction) and input_delay (when none was found) on the
-    stick windows, starting from the effects ``found``. None when there are too few sticks.
+    stick windows, starting from the effects ``found``, then LuGre in place of Coulomb + stiction (``lugre``).
+    ``only``: the candidates to try (a second reading, on a better sliding level). None when there are too few
+    sticks.
 
     ``delay_support(d)``: the arm regression's held-out gain with a delay d (None when the arm equation has too
     few sliding rows). A delay must also pay on the sliding rows: the breakaways alone cannot always tell a late
@@ -263,7 +274,7 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
 
     base = errors(current)
     first: dict[str, WindowFit] = {}
-    names = [n for n in GRIDS if n not in current and (prep.commanded or n != "input_delay")]
+    names = [n for n in GRIDS if n not in current and (prep.commanded or n != "input_delay") and (only is None or n in only)]
     while names:
         fits = {name: _profile(name, current, base, errors, th.n_blocks, delay_support) for name in names}
         first = first or dict(fits)
@@ -280,7 +291,61 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
         names = [f.name for f in ok if f is not best
                  and base.sum() - errors({**current, f.name: {f.param: f.value}}).sum() >= th.min_gain * base.sum()]
     _lookalikes(out, first, th)
+    if lugre and "arm_stiction" in out.added and "arm_lugre" not in found:
+        _lugre(rig, current, out, first["arm_stiction"].base_blocks, errors, th)
     return out
+
+
+def _lugre(rig: RigConfig, current: dict[str, dict[str, float]], out: WindowStage, coulomb_blocks: np.ndarray,
+           errors: Callable[[dict[str, dict[str, float]]], np.ndarray], th: Thresholds) -> None:
+    """LuGre (eq. 3) in place of Coulomb + stiction: the breakaway as the Stribeck peak Fs of a bristle model,
+    falling to Fc over the speed vs. Fc and Fv stay the regression's (the sliding rows are well above vs), Fs and
+    then vs are profiled on the stick windows; σ0 and σ1 come from the rig's [compensation.lugre] (the presliding
+    displacement Fc/σ0 is far below one encoder count: the data cannot give them). The better of the two models of
+    the breakaways is reported; when the blocks cannot tell them apart, the pair is declared ambiguous."""
+    cfg = rig.compensation.lugre
+    fc = current["arm_coulomb"]["Fc"]
+    rest = {k: v for k, v in current.items() if k not in ("arm_coulomb", "arm_stiction", "arm_viscous")}
+    law = {"sigma0": cfg.sigma0, "sigma1": cfg.sigma1, "Fc": fc, "Fv": current.get("arm_viscous", {}).get("Fv", 0.0)}
+
+    def model(fs: float, vs: float) -> dict[str, dict[str, float]]:
+        return {**rest, "arm_lugre": {**law, "Fs": max(fs, fc), "vs": vs}}
+
+    vs0 = cfg.vs
+    coulomb = coulomb_blocks
+    f_fs = profile("arm_lugre", "Fs", lambda v: errors(model(v, vs0)), [fc * r for r in STICTION_RATIOS[1:]], -1.0,
+                   np.zeros(len(out.windows)), th.n_blocks)
+    fs = f_fs.value
+    f_vs = profile("arm_lugre", "vs", lambda v: errors(model(fs, v)), [vs0 * r for r in LUGRE_VS_RATIOS], -1.0,
+                   np.zeros(len(out.windows)), th.n_blocks)
+    lugre = model(fs, f_vs.value)["arm_lugre"]
+    stiction = out.fits["arm_stiction"]
+    lugre_cv, stiction_cv = f_vs.cv_blocks, stiction.cv_blocks
+    rel = (lugre_cv.sum() - stiction_cv.sum()) / coulomb.sum()  # difference of the held-out gains over Coulomb alone
+    t = paired_t(stiction_cv, lugre_cv)  # > 0: LuGre better
+    entry = {"effects": ["arm_stiction", "arm_lugre"], "experiment": LUGRE_EXPERIMENT}
+    out.tried.append({"step": len(out.added), "name": "arm_lugre", **lugre, "cv_gain": 1.0 - lugre_cv.sum() / coulomb.sum(),
+                      "against_stiction": rel, "paired_t": t})
+    lugre_apart = rel <= -REL_APART and (t >= T_APART or rel <= -10 * REL_APART)  # LuGre clearly better
+    stiction_apart = rel >= REL_APART and (-t >= T_APART or rel >= 10 * REL_APART)
+    if lugre_apart:
+        out.added = {k: v for k, v in out.added.items() if k != "arm_stiction"} | {"arm_lugre": lugre}
+        out.fits["arm_lugre"] = replace(f_vs, base_blocks=coulomb_blocks)
+        out.fits.pop("arm_stiction")
+        out.replaces = ["arm_coulomb", "arm_viscous"]
+        out.lookalikes.append({**entry, "reported": "arm_lugre", "reason": (
+            f"LuGre (Fs = {fs:.3g}, vs = {f_vs.value:.3g}) fits the breakaways better than stiction "
+            f"({100 * rel:+.1f} % held-out error, paired t = {t:.1f})")})
+    elif stiction_apart:
+        out.lookalikes.append({**entry, "reported": "arm_stiction", "reason": (
+            f"LuGre in its place fits the breakaways worse ({100 * rel:+.1f} % held-out error, paired t = {-t:.1f})")})
+    else:
+        out.ambiguities.append({
+            **entry, "reported": "arm_stiction", "alternative": {"name": "arm_lugre", "params": lugre},
+            "alternative_model": {"arm_lugre": lugre}, "cv_difference": rel, "paired_t": -t,
+            "replaced": [n for n in ("arm_coulomb", "arm_viscous") if n in current],
+            "reason": f"on the stick windows LuGre (Fs = {fs:.3g}, vs = {f_vs.value:.3g}) fits almost as well "
+                      f"({100 * rel:+.2f} % held-out error, paired t = {-t:.1f})"})
 
 
 def values_before(out: WindowStage, stop: int, min_windows: int = MIN_WINDOWS) -> dict[str, dict[str, float]] | None:
@@ -289,7 +354,7 @@ def values_before(out: WindowStage, stop: int, min_windows: int = MIN_WINDOWS) -
     mask = np.array([w.start + w.horizon < stop for w in out.windows])
     if mask.sum() < min_windows:
         return None
-    return {name: {f.param: f.value_on(mask)} for name, f in out.fits.items()}
+    return {name: {**out.added[name], f.param: f.value_on(mask)} for name, f in out.fits.items()}
 
 
 def _lookalikes(out: WindowStage, first: dict[str, WindowFit], th: Thresholds, rel_apart: float = 0.01,
