@@ -366,6 +366,7 @@ class DaemonRun:
             "latency_p50_us": lat["p50"], "latency_p99_us": lat["p99"], "latency_max_us": lat["max"],
             "latency_p50_fraction": (lat["p50"] or 0.0) / period, "latency_p99_fraction": (lat["p99"] or 0.0) / period,
             "host_compute_p99_us": (s["update_us"]["p99"] or 0.0) + (s["write_us"]["p99"] or 0.0),
+            "mock_mean_work_us": self.mock.get("mean_work_us"),
             "log_drops": s["dropped_log_messages"], "cpu_share": self.cpu_share,
             "machine_busy": self.machine_busy, "steal": self.steal, "loadavg": self.loadavg,
         }
@@ -479,8 +480,16 @@ def attribute_misses(path: Path, rate: float) -> dict[str, Any]:
 # (cf. cyclictest): a period is missed when the thread wakes a whole period late; (2) a "device"
 # process writing a 20-byte frame at each deadline to a "host" process that answers 12 bytes, over a
 # socketpair; (3) the same over a pseudo-terminal (the hil-mock link): a period is missed when the
-# answer is not back by the next deadline. (1) → (2) adds a second process's wake-up, (2) → (3) the
-# kernel's pty delivery (tty flip-buffer work items), (3) → the daemon run adds furuta-rt itself.
+# answer is not back by the next deadline; (4) the pty pair again, each side burning the CPU time the
+# real pair spends per tick (hil-mock's work before it writes the SAMPLE, the host's read → update →
+# write). (1) → (2) adds a second process's wake-up, (2) → (3) the kernel's pty delivery (tty
+# flip-buffer work items), (3) → (4) the pair's CPU demand, (4) → the daemon run furuta-rt itself.
+def _burn(ns: int) -> None:
+    end = time.perf_counter_ns() + ns
+    while time.perf_counter_ns() < end:
+        pass
+
+
 def _fifo(priority: int = 50) -> bool:
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
@@ -489,7 +498,7 @@ def _fifo(priority: int = 50) -> bool:
         return False
 
 
-def _device_side(conn: Any, fd: int | None, period_ns: int, seconds: float) -> None:
+def _device_side(conn: Any, fd: int | None, period_ns: int, seconds: float, work_ns: int) -> None:
     fifo = _fifo()
     pc = time.perf_counter_ns
     periods = missed = 0
@@ -514,6 +523,7 @@ def _device_side(conn: Any, fd: int | None, period_ns: int, seconds: float) -> N
             continue
         with contextlib.suppress(BlockingIOError):
             os.read(fd, 4096)  # answers that came too late
+        _burn(work_ns)  # hil-mock: sample, plant advance, then the SAMPLE is written
         os.write(fd, frame)
         got = 0
         while got < 12:
@@ -530,19 +540,21 @@ def _device_side(conn: Any, fd: int | None, period_ns: int, seconds: float) -> N
     conn.send({"fifo": fifo, "periods": periods, "missed": missed, "wake_ns": np.array(wake), "rtt_ns": np.array(rtt)})
 
 
-def _host_side(fd: int) -> None:
+def _host_side(fd: int, work_ns: int) -> None:
     _fifo()
     with contextlib.suppress(OSError):
         while True:
             select.select([fd], [], [])
             if not os.read(fd, 4096):
                 break
+            _burn(work_ns)
             os.write(fd, b"\x55" * 12)
     os._exit(0)
 
 
-def probe(kind: str, rate: int, seconds: float) -> dict[str, Any]:
-    """kind: 'wake' (one thread), 'socketpair' or 'pty' (device + host processes)."""
+def probe(kind: str, rate: int, seconds: float, device_work_us: float = 0.0, host_work_us: float = 0.0) -> dict[str, Any]:
+    """kind: 'wake' (one thread), 'socketpair' or 'pty' (device + host processes, each burning its
+    ``*_work_us`` of CPU per period before it writes)."""
     ctx = multiprocessing.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
     host = None
@@ -556,10 +568,10 @@ def probe(kind: str, rate: int, seconds: float) -> dict[str, Any]:
             a, b = socket.socketpair()
             dev_fd, host_fd = a.detach(), b.detach()
         os.set_blocking(dev_fd, False)
-        host = ctx.Process(target=_host_side, args=(host_fd,))
+        host = ctx.Process(target=_host_side, args=(host_fd, round(host_work_us * 1000)))
         host.start()
         os.close(host_fd)
-    dev = ctx.Process(target=_device_side, args=(send, dev_fd, round(1e9 / rate), seconds))
+    dev = ctx.Process(target=_device_side, args=(send, dev_fd, round(1e9 / rate), seconds, round(device_work_us * 1000)))
     dev.start()
     if dev_fd is not None:
         os.close(dev_fd)
@@ -597,6 +609,11 @@ def bench_closed_loop(quick: bool) -> dict[str, Any]:
     out["met"] = out["at_1kHz"]["miss_percent"] < MISS_TARGET_PERCENT
     probe_s = 3.0 if quick else 60.0
     out["probes_1kHz"] = {kind: probe(kind, 1000, probe_s) for kind in ("wake", "socketpair", "pty")}
+    s = main.summary
+    work = {"device_work_us": main.mock.get("mean_work_us", 0.0),
+            "host_work_us": sum(s[k]["mean"] or 0.0 for k in ("read_us", "update_us", "write_us"))}
+    out["probes_1kHz"]["pty_with_pair_work"] = {**work, **probe("pty", 1000, probe_s, **work)}
+    out["probes_1kHz"]["mock_minimal_host"] = mock_minimal_host(1000, probe_s)
     if not quick:  # the same run without --log (no logger process, no queue)
         out["at_1kHz_without_log"] = daemon_run(1000, 60.0, log=False).figures()
     sweep_s = 5.0 if quick else 20.0
@@ -612,6 +629,27 @@ def bench_closed_loop(quick: bool) -> dict[str, Any]:
     out["highest_rate_achieved_within_1%_hz"] = keeps_up[-1] if keeps_up else None
     out["peers_ceiling_hz"] = PEERS_CEILING_HZ
     return out
+
+
+def _minimal_host(conn: Any, rate: int, seconds: float) -> None:
+    _fifo()
+    bm = _bench_mock_module()
+    conn.send(bm.mock_run(["--rate", str(rate), "--seed", "0"], seconds))
+
+
+def mock_minimal_host(rate: int, seconds: float) -> dict[str, Any]:
+    """hil-mock as the daemon starts it (real-time pacing, its own SCHED_FIFO) answered by
+    scripts/bench_mock's minimal host (decode, encode, write per SAMPLE) at SCHED_FIFO 50."""
+    ctx = multiprocessing.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_minimal_host, args=(send, rate, seconds))
+    proc.start()
+    host, dev = recv.recv()
+    proc.join(CHILD_TIMEOUT_S)
+    periods = host["samples"] + dev["missed_periods"]
+    misses = host["command_late"] + dev["missed_periods"]
+    return {"periods": periods, "missed": misses, "miss_percent": 100.0 * misses / max(periods, 1),
+            "command_late": host["command_late"], "mock_missed_periods": dev["missed_periods"]}
 
 
 # ----------------------------------------------------------------------------------- hil_mock
@@ -827,7 +865,7 @@ def bench_logging(quick: bool) -> dict[str, Any]:
     from furuta_rt.io.mcap_read import read_log
     from furuta_rt.runtime.records import TICK_RECORD
 
-    rate, seconds = 1000, (5.0 if quick else 30.0)
+    rate, seconds = 1000, (4.0 if quick else 30.0)
     period_us = 1e6 / rate
     with tempfile.TemporaryDirectory(prefix="furuta-bench-") as tmp:
         path = str(Path(tmp) / "log.mcap")
@@ -944,8 +982,12 @@ def table(res: dict[str, Any]) -> list[dict[str, Any]]:
                 f"{100 * at['host_compute_over_half_period'] / a['misses']:.1f}% host compute")
         p = c["probes_1kHz"]
         row(f"same machine, no furuta-rt ({p['wake']['periods'] / 1000:g} s each): SCHED_FIFO wake-ups / FIFO pair over "
-            "a socketpair / over a pty", " / ".join(f"{p[k]['miss_percent']:.2f}%" for k in ("wake", "socketpair", "pty")),
+            "a socketpair / over a pty / over a pty burning the pair's CPU per tick",
+            " / ".join(f"{p[k]['miss_percent']:.2f}%" for k in ("wake", "socketpair", "pty", "pty_with_pair_work")),
             "periods", "deadline misses", "< 0.1%", all(p[k]["miss_percent"] < MISS_TARGET_PERCENT for k in p))
+        mh = p["mock_minimal_host"]
+        row("hil-mock answered by a minimal SCHED_FIFO host (scripts/bench_mock's)", f"{mh['missed']} of {mh['periods']}",
+            "periods", f"{mh['miss_percent']:.2f}%", "< 0.1%", mh["miss_percent"] < MISS_TARGET_PERCENT)
         if "at_1kHz_without_log" in c:
             b = c["at_1kHz_without_log"]
             row(f"closed loop 1 kHz, {b['seconds']:g} s, without --log: deadline misses", f"{b['misses']} of {b['periods']}",
@@ -1005,6 +1047,11 @@ def table(res: dict[str, Any]) -> list[dict[str, Any]]:
             row(f"control process RSS over {mm['seconds'] / 60:g} min at 1 kHz",
                 f"peak {mm['control_peak_rss_kb'] / 1024:.1f} MB, slope {c['slope_kb_per_min']:+.1f} kB/min",
                 "peak RSS", f"{100 * c['growth_per_hour_fraction']:+.3f}% per hour", "no growth (< 1%/h)", mm["met"])
+        lg = mm.get("logger", {})
+        if "slope_kb_per_min" in lg:
+            row(f"logger process RSS over {mm['seconds'] / 60:g} min at 1 kHz",
+                f"{lg['first_kb'] / 1024:.1f} → {lg['last_kb'] / 1024:.1f} MB, slope {lg['slope_kb_per_min']:+.0f} kB/min",
+                "its RSS", f"{100 * lg['growth_per_hour_fraction']:+.1f}% per hour")
     return rows
 
 
