@@ -137,7 +137,7 @@ def window_cases(rig, tmp_path_factory):
 def test_stiction_breakaway_torque_is_found(rig, window_cases) -> None:
     """Eq. 2: the arm sticks until the held torque exceeds Fs = 0.08, slides against Fc = 0.05. The regression finds
     the sliding level, the stick windows the breakaway torque, and the held-out fit improves."""
-    case, rec = window_cases["stiction"]
+    _, rec = window_cases["stiction"]
     d = diagnose(rec, rig, FAST)
     found = {e.name: e.params for e in d.effects}
     assert set(found) == {"arm_coulomb", "arm_stiction"}

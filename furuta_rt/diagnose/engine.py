@@ -8,10 +8,15 @@ Pipeline (every physical model from furuta_rt.model / furuta_rt.sim):
 2. select — per equation of eq. 4 (arm, pendulum), forward selection of named effects on held-out
    time blocks, with significance and admissibility checks (furuta_rt.diagnose.select);
 3. refit — the nonlinear parameters (delay, deadzone, saturation, ΔJ) re-profiled jointly with the others;
-4. look-alikes — each selected effect against its look-alike: if the data cannot tell them apart,
-   both are reported with the experiment that would;
-5. verify — multi-step prediction of the nominal and the augmented model on the last part of the
+4. window stages — where the arm sticks, its breakaways (stiction, LuGre, actuator timing:
+   furuta_rt.diagnose.stickslip); where the largest commands are out of the regression's reach, the arm's
+   response to them (a torque limit: furuta_rt.diagnose.peaks), simulated with the shared Simulator;
+5. look-alikes — each selected effect against its look-alike: if the data cannot tell them apart,
+   both are reported with the experiment that would (gain ↔ inertia decided by the κ test when it can);
+6. verify — multi-step prediction of the nominal and the augmented model on the last part of the
    recording with parameters fitted on the first part, and closed-loop re-simulation statistics.
+
+The rig's own [effects] are part of the nominal model; what is found is reported as corrected totals.
 """
 
 from __future__ import annotations
@@ -373,14 +378,18 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
         # friction is the held torque, not ±Fc: the arm regression is redone without any short stay at one count
         # (and the stick windows are read again on top of the sliding level found there)
         em, r = _select(ctx, ARM, opts, ctx.clear_of(ctx.stays(STICTION_STILL_TICKS)))
-        if "arm_coulomb" in r.selected.spec.effects and em.n_rows >= 20 * opts.thresholds.n_blocks:
+        if "arm_coulomb" in r.selected.spec.effects and em.n_rows >= max(RESELECT_MIN_ROWS, RESELECT_MIN_SHARE * ems[ARM].n_rows):
             ems[ARM], res[ARM] = em, r
             found = [f for eq in res for f in _found(ems[eq], res[eq], [])]
             notes.append(f"arm equation: with a breakaway above the sliding level, stays of ≥ {STICTION_STILL_TICKS} ticks at "
                          f"one encoder count are left out too (they may be short sticks); {em.n_rows} rows")
         else:
             found = [f for f in found if f.source != "stick windows"]
-        stick = _stick_windows(ctx, found, ems, res, opts, only=set(stick.added))
+        first, stick = stick, _stick_windows(ctx, found, ems, res, opts, only=set(stick.added))
+        if stick is not None:  # what the first reading compared stays on record
+            stick.tried = [{**t, "pass": 1} for t in first.tried] + [{**t, "pass": 2} for t in stick.tried]
+            stick.lookalikes += [a for a in first.lookalikes if a["effects"][1] not in stick.added]
+            stick.ambiguities += [a for a in first.ambiguities if a["alternative"]["name"] not in stick.added]
     peak = _peak_windows(ctx, found, ems, res, opts) if opts.stick_windows else None
     ambiguities, lookalikes, swaps = check_lookalikes(ems, res, opts)
     for eq, alt in swaps.items():  # the look-alike test favours the alternative: it becomes the equation's model
@@ -446,6 +455,7 @@ def _found(em: EquationModel, r: EquationResult, notes: list[str]) -> list[Found
 
 
 LUGRE_CONTAINS = ("arm_coulomb", "arm_viscous")
+RESELECT_MIN_ROWS, RESELECT_MIN_SHARE = 1000, 0.25  # the arm regression without short stays, if this much is left
 
 
 def _within_bounds(name: str, params: dict[str, float]) -> dict[str, float]:

@@ -153,12 +153,13 @@ class Context:
 
     def stribeck(self, vs: float) -> np.ndarray:
         """K * (the Stribeck part of LuGre's steady-state friction, eq. 3 at constant speed, per unit Fs − Fc): the
-        torque −e^(−(v/vs)²)·sgn v, from LuGre.steady_state_force; the direction from the encoder counts, the speed
-        through the arm kernel (the narrow one does not resolve slow motion)."""
+        torque −e^(−(v/vs)²)·sgn v, from LuGre.steady_state_force, evaluated on the instantaneous motion (the direction
+        from the encoder counts, the speed through the narrow kernel: a smoothed speed inside the law lags, which the
+        regression would read as a delay) and then seen through the arm kernel like every other column."""
         key = f"stribeck:{vs:.6g}"
         if key not in self._columns:
             law = LuGre(sigma0=1.0, sigma1=0.0, Fc=0.0, Fs=1.0, vs=vs)
-            v = self.arm_direction * np.abs(self.arm.phi_dot)
+            v = self.arm_direction * np.abs(self.fine.phi_dot)
             self._columns[key] = self.arm.smooth(law_on_array(lambda x: -law.steady_state_force(x), v))
         return self._columns[key]
 

@@ -5,6 +5,9 @@ Figures (matplotlib Agg canvases, no pyplot state):
   where.png      where the mismatch sits: the nominal residual against the signal it follows most, and per
                  operating region
   prediction.png held-out prediction windows: data, nominal and augmented simulations
+  sticks.png     stick windows (when they found something): the measured arm, the arm simulated without and with
+                 the breakaway torque / delay they found, and the command against Fc and Fs
+  peaks.png      command-peak windows (when they found a limit): likewise
 """
 
 from __future__ import annotations
@@ -19,7 +22,9 @@ from matplotlib.figure import Figure
 from furuta_rt.diagnose.decay import DecayResult
 from furuta_rt.diagnose.engine import Diagnosis
 from furuta_rt.diagnose.locate import features
+from furuta_rt.diagnose.stickslip import WindowStage, simulate_arm
 from furuta_rt.diagnose.verify import quiet, simulate_window
+from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 
 DPI = 72
@@ -43,7 +48,8 @@ def text(d: Diagnosis) -> list[str]:
         lines.append("effects found (held-out error reduction, significance):")
         for e in d.effects:
             how = (f"{e.equation} equation, −{100 * e.cv_gain:.1f} %, t = {e.t:.0f}" if e.source == "inverse dynamics"
-                   else f"{e.equation} equation, from the {e.source}")
+                   else f"{e.equation} equation, from the {e.source}" + (
+                       f": −{100 * e.cv_gain:.1f} %, t = {e.t:.0f}" if e.source.endswith("windows") else ""))
             lines.append(f"  {e.name}: {fmt_params(e.params, e.se)}   [{how}]")
     else:
         lines.append("no effect found: the nominal model explains the recording")
@@ -140,7 +146,54 @@ def figures(d: Diagnosis, out: Path, prefix: str = "") -> list[Path]:
         paths.append(_save(fig, out / f"{prefix}prediction.png"))
     if d.decay_result is not None:
         paths.append(decay_figure(d.decay_result, out / f"{prefix}decay.png"))
+    for stage, name in ((d.stick, "sticks"), (d.peak, "peaks")):
+        if stage is not None and stage.added:
+            paths.append(window_figure(d, stage, out / f"{prefix}{name}.png"))
     return paths
+
+
+def window_figure(d: Diagnosis, stage: WindowStage, path: Path, count: int = 4) -> Path:
+    """Windows of a window stage (sticks or command peaks): the measured arm angle, the arm simulated without the
+    stage's effects and with them (pendulum teacher-forced), and the command."""
+    ctx = d.context
+    prep = ctx.prep
+    found = {e.name: e.params for e in d.effects}
+    without = {k: v for k, v in found.items() if k not in stage.added}
+    without |= {k: v for k, v in ctx.known.items() if k in stage.replaces and k not in without}
+    rig = quiet(ctx.rig)
+    models = (RigModel.from_config(rig, effects_of_dict(without)), RigModel.from_config(rig, effects_of_dict(found)))
+    wins = stage.windows[:: max(1, len(stage.windows) // count)][:count]
+    fig, ax = _figure(2, len(wins), (2.6 * len(wins), 4.6))
+    t0 = prep.t[0]
+    for i, w in enumerate(wins):
+        span = slice(w.start + 1, w.start + 1 + w.horizon)
+        tt = prep.t[span] - t0
+        a = ax[0, i]
+        a.step(tt, 1e3 * prep.phi[span], "k", where="post", lw=1, label="data (encoder)")
+        labels = ("without " + ", ".join(stage.added), "with " + ", ".join(stage.added))
+        for model, style, label in zip(models, ("C3--", "C0"), labels, strict=True):
+            a.plot(tt, 1e3 * simulate_arm(model, prep, ctx.fine, w), style, lw=1, label=label)
+        a.set_xlabel("t (s)")
+        b = ax[1, i]
+        b.step(tt, prep.u[w.start : w.start + w.horizon], "k", where="post", lw=0.8)
+        for params in stage.added.values():
+            level = params.get("Fs", params.get("limit"))
+            if level is not None:
+                for sgn in (1, -1):
+                    b.axhline(sgn * level, color="C0", lw=0.8, ls=":")
+        if "arm_coulomb" in found:
+            for sgn in (1, -1):
+                b.axhline(sgn * found["arm_coulomb"]["Fc"], color="C3", lw=0.8, ls=":")
+        b.set_xlabel("t (s)")
+    ax[0, 0].set_ylabel("φ (mrad)")
+    ax[1, 0].set_ylabel("command u (N m)")
+    ax[0, 0].legend(fontsize=6)
+    fig.suptitle(f"{len(stage.windows)} windows; dotted: breakaway / limit (blue), sliding level Fc (red)", fontsize=8)
+    return _save(fig, path)
+
+
+def effects_of_dict(params: dict[str, dict[str, float]]) -> Effects:
+    return Effects.model_validate(params)
 
 
 def decay_figure(r: DecayResult, path: Path) -> Path:
