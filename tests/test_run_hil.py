@@ -195,7 +195,8 @@ def test_sigint_stops_cleanly_with_zero_log_closed_summary_printed(tmp_path: Pat
     assert any("operator stop (SIGINT)" in str(e["message"]) for e in log.events)
     assert_ends_safe(rec)
     enabled = [i for i, c in enumerate(rec.commands) if c[5] & ENABLE]
-    assert enabled and len(rec.commands) - enabled[-1] <= 3, "it was balancing until the signal"
+    # after the last enabled COMMAND: the loop's own u = 0, then stop()'s zero COMMAND sent twice (+ slack of one)
+    assert enabled and len(rec.commands) - enabled[-1] <= 4, "it was balancing until the signal"
 
 
 def test_killed_run_leaves_a_log_readable_to_its_last_second(tmp_path: Path) -> None:

@@ -301,7 +301,10 @@ class SerialHardware(HardwareInterface):
         if self._fd < 0 or self._stopped:
             return
         self._stopped = True
-        for frame in (encode_command(self._last_seq, 0, 0), encode(Stop(reason=0))):
+        # Each frame twice: on a noisy link a single corrupted frame must not leave the actuator enabled
+        # (the device drops a bad frame silently; duplicates are harmless: both mean "output zero").
+        zero, stop = encode_command(self._last_seq, 0, 0), encode(Stop(reason=0))
+        for frame in (zero, zero, stop, stop):
             try:
                 self._send(frame)
             except LinkLost:
