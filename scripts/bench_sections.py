@@ -1045,8 +1045,9 @@ def table(res: dict[str, Any]) -> list[dict[str, Any]]:
         c = mm.get("control", {})
         if "slope_kb_per_min" in c:
             row(f"control process RSS over {mm['seconds'] / 60:g} min at 1 kHz",
-                f"peak {mm['control_peak_rss_kb'] / 1024:.1f} MB, slope {c['slope_kb_per_min']:+.1f} kB/min",
-                "peak RSS", f"{100 * c['growth_per_hour_fraction']:+.3f}% per hour", "no growth (< 1%/h)", mm["met"])
+                f"peak {mm['control_peak_rss_kb'] / 1024:.1f} MB, slope {round(c['slope_kb_per_min'], 1) + 0.0:+.1f} kB/min",
+                "peak RSS", f"{round(100 * c['growth_per_hour_fraction'], 3) + 0.0:+.3f}% per hour", "no growth (< 1%/h)",
+                mm["met"])
         lg = mm.get("logger", {})
         if "slope_kb_per_min" in lg:
             row(f"logger process RSS over {mm['seconds'] / 60:g} min at 1 kHz",
