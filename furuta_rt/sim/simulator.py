@@ -120,30 +120,23 @@ class Simulator:
     # ------------------------------------------------------------ dynamics
     def _make_rhs(self) -> Callable[..., tuple[float, float, float, float]]:
         """The smooth dynamics as a closure over the model's constants (the hot path: 4 calls a substep)."""
-        a, b, c, e = self._alpha, self._beta, self._gamma, self._eps
+        accelerations = self.model.plant.accelerations  # eq. 4: the one definition
         fv_arm, k, phi0, bp = self._fv_arm, self._k, self._phi0, self._bp
         smooth_dry, pend_dry = self._smooth_dry, self._pend_dry
         fa0, fa1, offset = self._fa0, self._fa1, self.model.theta_offset
-        sin, cos = math.sin, math.cos
 
         def rhs(
             th: float, thd: float, ph: float, phd: float, y: float, yd: float, tau0: float, damp: float, F: float
         ) -> tuple[float, float, float, float]:
-            """(θ̈, φ̈, ÿ, 0): eq. 4 solved for the accelerations, and the Bessel filter driven by θ."""
-            s = sin(th)
-            co = cos(th)
+            """(θ̈, φ̈, ÿ, 0): eq. 4 with the joint torques, and the Bessel filter driven by θ."""
             tau_arm = tau0 - (damp + fv_arm) * phd + F - k * (ph - phi0)
             if smooth_dry is not None:
                 tau_arm += smooth_dry.torque(phd)
             tau_p = -bp * thd
             if pend_dry is not None:
                 tau_p += pend_dry.torque(thd)
-            m12 = c * co
-            m22 = b + a * s * s
-            f1 = a * phd * phd * s * co + e * s + tau_p
-            f2 = c * thd * thd * s - 2.0 * a * thd * phd * s * co + tau_arm
-            det = a * m22 - m12 * m12
-            return (m22 * f1 - m12 * f2) / det, (a * f2 - m12 * f1) / det, fa0 * (th + offset - y) - fa1 * yd, 0.0
+            thdd, phdd = accelerations(th, thd, phd, tau_arm, tau_p)
+            return thdd, phdd, fa0 * (th + offset - y) - fa1 * yd, 0.0
 
         return rhs
 
@@ -160,7 +153,7 @@ class Simulator:
         """Friction torque needed to keep the arm at rest (arm row of eq. 4 with φ̇ = φ̈ = 0)."""
         th, thd = self.theta, self.theta_dot
         thdd, _ = self._rhs_stuck(th, thd, self.y, self.y_dot)
-        return self._gamma * math.cos(th) * thdd - self._gamma * thd * thd * math.sin(th) - tau_arm_ext
+        return self.model.plant.inverse_dynamics(th, thd, 0.0, thdd, 0.0)[1] - tau_arm_ext
 
     def _substep(self, command: float) -> None:
         h = self.h
