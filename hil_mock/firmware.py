@@ -26,6 +26,7 @@ The rules are those of firmware_protocol/PROTOCOL.md §5–7. Where the spec lea
 
 from __future__ import annotations
 
+import dataclasses
 import struct
 
 from firmware_protocol import (
@@ -73,6 +74,21 @@ def _f32(x: float) -> float:
     return struct.unpack("<f", struct.pack("<f", x))[0]
 
 
+def _protocol_latency(model: RigModel, rate_hz: float) -> RigModel:
+    """The model with its ``command_latency`` (total, from the sample instant) turned into the actuator delay on top
+    of the protocol's one period (a COMMAND answering SAMPLE k is applied at tick k+1)."""
+    L = model.command_latency
+    if L is None:
+        return model
+    extra = L - 1.0 / rate_hz
+    if extra < -1e-12:
+        raise ValueError(f"command_latency {L:g} s is shorter than the protocol's one period ({1.0 / rate_hz:g} s at "
+                         f"{rate_hz:g} Hz): the mock applies a COMMAND at the tick after its SAMPLE; simulate it with "
+                         "run_closed_loop instead")
+    actuator = dataclasses.replace(model.actuator, delay=max(extra, 0.0))
+    return dataclasses.replace(model, actuator=actuator, command_latency=None)
+
+
 class Firmware:
     """Protocol state machine of the DAQ with the simulated rig behind it."""
 
@@ -81,6 +97,7 @@ class Firmware:
         if not 1 <= rate_hz <= top:
             raise ValueError(f"rate {rate_hz} Hz: must be within 1..{top:g} Hz (at most the physics substep rate)")
         self.rig = rig
+        model = _protocol_latency(model, rate_hz)
         self.model = model
         self.settings = settings
         self.substep_hz = settings.substep_hz

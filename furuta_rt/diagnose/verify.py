@@ -46,7 +46,7 @@ def start_simulator(model: RigModel, prep: Prepared, fine: States, k: int, rate:
         sim.y_dot = float(fine.smooth(prep.theta_dot_f)[k]) if prep.theta_dot_f is not None else float(fine.theta_dot[k])
     n = len(sim.commands_in_flight)  # the actuator's transport delay: fill with the commands already in flight
     if n:
-        D = round(prep.command_lag / prep.dt)
+        D = 0 if sim.commands_at_sample else round(prep.command_lag / prep.dt)
         queued = []
         for i in range(n):
             t_sub = -(n - i) * sim.h  # time before t_k of this queued substep command
@@ -78,7 +78,7 @@ def simulate_window(model: RigModel, prep: Prepared, fine: States, k: int, horiz
                     substep_hz: float = 2000.0) -> tuple[np.ndarray, np.ndarray]:
     """(θ_f, φ) predicted for ticks k+1 … k+horizon, open loop with the recorded commands."""
     sim = start_simulator(model, prep, fine, k, 1.0 / prep.dt, substep_hz)
-    D = round(prep.command_lag / prep.dt)
+    D = 0 if sim.commands_at_sample else round(prep.command_lag / prep.dt)  # command_latency: the line lags
     th = np.empty(horizon)
     ph = np.empty(horizon)
     for j in range(horizon):

@@ -7,6 +7,13 @@ more (``--effect arm_coulomb.Fc=0.3``); ``diagnose`` reports what it finds in th
     arm_lugre {sigma0, sigma1, Fc, Fs, vs, Fv}              pendulum_viscous {bp}   pendulum_coulomb {Fc}
     theta_offset {offset}       input_delay {delay}        input_deadzone {width}  input_gain {gain}
     input_saturation {limit}    arm_spring {k, phi0}       arm_inertia {J}
+    arm_bias {tau}              command_latency {delay}
+
+Latency: the rig's configuration says the command answering the sample of tick k acts from
+t_k + command_delay_ticks·h; ``input_delay`` is an extra transport delay of the actuator ON TOP of that
+(≥ 0). ``command_latency`` is the TOTAL time from the sample instant to the torque acting (s, may be
+shorter than command_delay_ticks·h): when it is set it replaces command_delay_ticks·h + input_delay
+(an input_delay given as well is ignored by the simulator; diagnose reports one or the other).
 """
 
 from __future__ import annotations
@@ -63,6 +70,15 @@ class InputDelay(_Effect):
     delay: float = Field(ge=0, le=0.5, description="transport delay of the actuator command, s")
 
 
+class CommandLatency(_Effect):
+    delay: float = Field(ge=0, le=0.5, description="total s from the sample instant to the torque acting "
+                         "(replaces command_delay_ticks·h + input_delay)")
+
+
+class ArmBias(_Effect):
+    tau: float = Field(description="constant torque on the arm, N m (cable drag, driver offset, tilted base)")
+
+
 class InputDeadzone(_Effect):
     width: float = Field(ge=0, description="half-width of the dead band, N m")
 
@@ -98,6 +114,8 @@ EFFECT_TYPES: dict[str, type[_Effect]] = {
     "input_saturation": InputSaturation,
     "arm_spring": ArmSpring,
     "arm_inertia": ArmInertia,
+    "arm_bias": ArmBias,
+    "command_latency": CommandLatency,
 }
 
 
@@ -117,6 +135,8 @@ class Effects(_Effect):
     input_saturation: InputSaturation | None = None
     arm_spring: ArmSpring | None = None
     arm_inertia: ArmInertia | None = None
+    arm_bias: ArmBias | None = None
+    command_latency: CommandLatency | None = None
 
     @model_validator(mode="after")
     def _consistent(self) -> Effects:

@@ -30,6 +30,8 @@ class RigModel:
     spring_k: float = 0.0
     spring_phi0: float = 0.0
     theta_offset: float = 0.0
+    arm_bias: float = 0.0  # constant torque on the arm, N m
+    command_latency: float | None = None  # total s from the sample instant to the torque (None: the driver's lag)
     theta_noise: float = 0.0
     theta_dot_noise: float = 0.0
 
@@ -76,6 +78,8 @@ class RigModel:
             spring_k=eff.arm_spring.k if eff.arm_spring else 0.0,
             spring_phi0=eff.arm_spring.phi0 if eff.arm_spring else 0.0,
             theta_offset=eff.theta_offset.offset if eff.theta_offset else 0.0,
+            arm_bias=eff.arm_bias.tau if eff.arm_bias else 0.0,
+            command_latency=eff.command_latency.delay if eff.command_latency else None,
             theta_noise=s.theta_noise,
             theta_dot_noise=s.theta_dot_noise,
         )

@@ -89,6 +89,10 @@ def simulate_log(
             })
             if flush_ticks and (k + 1) % flush_ticks == 0:
                 w.flush()
-            sim.advance()
-            sim.set_command(u)
+            if sim.commands_at_sample:  # command_latency: the simulator's delay line is the total lag
+                sim.set_command(u)
+                sim.advance()
+            else:
+                sim.advance()
+                sim.set_command(u)
     return Path(path)

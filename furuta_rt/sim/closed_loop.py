@@ -1,7 +1,8 @@
 """Closed-loop simulation: the same Controller.update as the daemon, against the Simulator.
 
 Timing as on the rig: the sample of tick k is read, the command computed from it takes effect at
-tick k+1 (the protocol's one-period command latency).
+tick k+1 (the protocol's one-period command latency); with the effect ``command_latency`` it takes
+effect that many seconds after the sample instant instead.
 """
 
 from __future__ import annotations
@@ -50,8 +51,12 @@ def run_closed_loop(
                th, thd, ph, phd, sim.arm_friction_torque)
         for col, value in zip(cols.values(), row, strict=True):
             col[k] = value
-        sim.advance()
-        sim.set_command(out.u)
+        if sim.commands_at_sample:  # command_latency: the total lag is the simulator's delay line
+            sim.set_command(out.u)
+            sim.advance()
+        else:
+            sim.advance()
+            sim.set_command(out.u)
     return Recording(
         t=cols.pop("t"), theta=cols.pop("theta"), phi=cols.pop("phi"), u=cols.pop("u"),
         theta_dot=cols.pop("theta_dot"), extra=cols,

@@ -3,7 +3,7 @@
 Time is advanced in control ticks (default 500 Hz), each split into physics substeps (default
 10 kHz). Each substep:
 
-1. the shaped, delayed command gives the arm torque τ0 − d·φ̇ (d: DC-motor back-EMF);
+1. the shaped, delayed command gives the arm torque τ0 − d·φ̇ (d: DC-motor back-EMF), plus arm_bias;
 2. the arm's dry friction is resolved *implicitly* (time-stepping à la Moreau/Stewart): the torque
    that would stop the arm within the substep is computed from the arm compliance (M⁻¹)₂₂; if it lies
    within the breakaway limit the arm sticks (φ̇ = 0 exactly, reduced dynamics for θ), otherwise it
@@ -67,7 +67,11 @@ class Simulator:
         self.stuck = False
         self.arm_friction_torque = 0.0
         self.command = 0.0
-        n_delay = round(model.actuator.delay / self.h)
+        # command_latency (total, from the sample instant) replaces the driver's one-tick lag + the actuator delay:
+        # the driver then calls set_command at the sample instant (commands_at_sample), the line carries it all.
+        lag = model.command_latency if model.command_latency is not None else model.actuator.delay
+        n_delay = round(lag / self.h)
+        self._bias = model.arm_bias
         self._delay_line: deque[float] = deque([0.0] * n_delay)
         p = model.plant.p
         self._alpha, self._beta, self._gamma, self._eps = p.alpha, p.beta, p.gamma, p.epsilon
@@ -112,6 +116,13 @@ class Simulator:
             raise ValueError(f"the delay line holds {len(self._delay_line)} substep commands, got {len(commands)}")
         self._delay_line.clear()
         self._delay_line.extend(float(c) for c in commands)
+
+    @property
+    def commands_at_sample(self) -> bool:
+        """True when the rig has a ``command_latency``: the driver sets the command answering a sample at that
+        sample's instant (before ``advance``) and the delay line makes it act ``command_latency`` s later. False:
+        the driver sets it one tick later (the protocol's lag), the line adding the actuator's ``input_delay``."""
+        return self.model.command_latency is not None
 
     def set_command(self, command: float) -> None:
         """The actuator command (N m or V) from now on (the actuator's own delay still applies)."""
@@ -161,6 +172,7 @@ class Simulator:
             self._shaped_for = command
             self._shaped = self.model.actuator.torque_terms(command)
         tau0, damp = self._shaped
+        tau0 += self._bias  # arm_bias: a constant torque on the arm
         th, thd, ph, phd, y, yd = self.theta, self.theta_dot, self.phi, self.phi_dot, self.y, self.y_dot
 
         F = 0.0
