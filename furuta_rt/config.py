@@ -11,7 +11,7 @@ import math
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from furuta_rt.errors import UserError
 from furuta_rt.model.effects import Effects
@@ -109,12 +109,20 @@ class ActuatorConfig(_Section):
 
 
 class SensorConfig(_Section):
-    bessel_cutoff: Positive | None = Field(default=50.0, description="−3 dB of the θ filter, rad/s; none = direct")
+    bessel_cutoff: Positive | None = Field(
+        default=50.0, description='−3 dB of the θ filter, rad/s; "none" = θ measured directly (an encoder)'
+    )
     encoder_counts_per_rev: Annotated[int, Field(gt=0)] = 4096
     theta_rad_per_count: Positive = 2.0 * math.pi / 65536.0
     theta_dot_rad_s_per_count: Positive = 100.0 / 65536.0
     theta_noise: NonNegative = Field(default=2e-4, description="white noise std at the θ ADC, rad")
     theta_dot_noise: NonNegative = Field(default=2e-3, description="white noise std at the θ̇ ADC, rad/s")
+
+    @field_validator("bessel_cutoff", mode="before")
+    @classmethod
+    def _none_filter(cls, value: object) -> object:
+        """TOML has no null: ``bessel_cutoff = "none"`` means no analog θ filter."""
+        return None if isinstance(value, str) and value.strip().lower() == "none" else value
 
 
 class PolePlacement(_Section):

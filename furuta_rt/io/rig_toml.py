@@ -56,4 +56,7 @@ def dict_to_toml(data: dict[str, Any]) -> str:
 
 def rig_to_toml(rig: RigConfig) -> str:
     """The rig config as a TOML rig file."""
-    return dict_to_toml(rig.model_dump(mode="json", exclude_none=True))
+    data = rig.model_dump(mode="json", exclude_none=True)
+    if rig.sensors.bessel_cutoff is None:  # TOML has no null: the config reads "none" as no θ filter
+        data["sensors"]["bessel_cutoff"] = "none"
+    return dict_to_toml(data)
