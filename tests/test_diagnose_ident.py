@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from furuta_rt.config import load_rig
-from furuta_rt.model.effects import Effects
+from furuta_rt.diagnose import Options, diagnose
+from furuta_rt.diagnose.suite import reference_signal
+from furuta_rt.model.effects import Effects, effects_from_assignments
 from furuta_rt.model.rig import RigModel
 from furuta_rt.sim.closed_loop import run_closed_loop
 from furuta_rt.sim.simulator import Simulator
@@ -59,3 +61,34 @@ def test_hil_mock_refuses_a_latency_below_its_protocol_period() -> None:
     short = RigModel.from_config(rig, Effects.model_validate({"command_latency": {"delay": 0.001}}))
     with pytest.raises(ValueError, match="shorter than the protocol's one period"):
         _protocol_latency(short, 500.0)
+
+
+# ------------------------------------------------------------------------------------------------ diagnose
+FAST = Options(closed_loop=False, max_windows=15)
+
+
+def _balancing(rig, effects: list[str], seed: int, reference: str, duration: float = 30.0):
+    n = round(duration * rig.control.rate_hz)
+    ref = reference_signal(reference, n, rig.control.rate_hz, seed)
+    rec = run_closed_loop(rig, duration, effects=effects_from_assignments(effects), seed=seed, reference=ref)
+    rec.extra["phi_ref"] = ref
+    return rec
+
+
+def test_arm_bias_is_found_in_the_arm_equation_not_as_a_theta_offset(thesis_rig) -> None:
+    d = diagnose(_balancing(thesis_rig, ["arm_bias.tau=0.03"], 3, "sine"), thesis_rig, FAST)
+    found = {e.name: e.params for e in d.effects}
+    assert set(found) == {"arm_bias"}, found
+    assert found["arm_bias"]["tau"] == pytest.approx(0.03, rel=0.05)
+    told = [a for a in d.lookalikes if set(a["effects"]) == {"arm_bias", "theta_offset"}]
+    assert told and told[0]["reported"] == "arm_bias"
+
+
+def test_a_command_acting_one_tick_sooner_is_measured_as_the_latency_alone(thesis_rig) -> None:
+    """The thesis rig's config says the command acts one tick after its sample; here it acts at once."""
+    h = 1.0 / thesis_rig.control.rate_hz
+    d = diagnose(_balancing(thesis_rig, ["command_latency.delay=0"], 4, "square"), thesis_rig, FAST)
+    found = {e.name: e.params for e in d.effects}
+    assert set(found) == {"command_latency"}, found
+    assert abs(found["command_latency"]["delay"] - 0.0) < 0.5 * h
+    assert d.fit["augmented"] < d.fit["nominal"]

@@ -106,7 +106,15 @@ class Context:
     def base_path(self) -> InputPath:
         """The command path of the nominal model (the rig's own delay, deadzone, limit; in command units)."""
         a, g = self.model.actuator, self.known_gain
-        return InputPath(delay=a.delay, deadzone=a.deadzone / g, limit=None if a.limit is None else a.limit / g)
+        return InputPath(delay=self.base_delay, deadzone=a.deadzone / g, limit=None if a.limit is None else a.limit / g)
+
+    @cached_property
+    def base_delay(self) -> float:
+        """The nominal model's delay on top of command_delay_ticks·h: the rig's own input_delay, or its own
+        command_latency (a total) less command_delay_ticks·h (negative when the command acts sooner)."""
+        if self.model.command_latency is not None:
+            return self.model.command_latency - self.prep.command_lag
+        return self.model.actuator.delay
 
     @cached_property
     def base_inertia(self) -> float:
@@ -336,6 +344,7 @@ class Candidate:
     lookalikes: tuple[str, ...] = ()
     nonlinear: str | None = None  # "delay" | "deadzone" | "limit" (command path), "inertia" (ΔJ), "vs" (Stribeck)
     requires: str | None = None  # an effect that must be in the model first
+    excludes: tuple[str, ...] = ()  # effects it cannot be added to (the same parameter, or the same column)
 
     def columns(self, ctx: Context, path: InputPath, vs: float = 0.0) -> np.ndarray:
         """(n, k) regressors for this effect's linear parameters (k = 0 for pure input-path effects)."""
@@ -356,6 +365,8 @@ class Candidate:
                 return a.smooth(law_on_array(Coulomb(1.0).torque, ctx.arm_direction))[:, None]
             case "arm_viscous":
                 return Viscous(1.0).torque(a.phi_dot)[:, None]
+            case "arm_bias":  # RigModel.arm_bias: a constant torque on the arm (the kernel integrates to one)
+                return np.ones((n, 1))
             case "arm_spring":
                 # −k(φ − φ0) = −k·φ + (k φ0): the cable spring of RigModel.spring_k / spring_phi0
                 return np.column_stack([-a.phi, np.ones(n)])
@@ -384,6 +395,8 @@ class Candidate:
                 return {"k": kk, "phi0": (k0 * phi00 + float(coef[1])) / kk if kk != 0 else 0.0}
             case "arm_inertia":
                 return {"J": float(ctx.base_inertia + d_inertia)}
+            case "arm_bias":
+                return {"tau": k("arm_bias", "tau") + float(coef[0])}
             case "input_gain":
                 return {"gain": float(ctx.known_gain * (1.0 + coef[0]))}
             case "pendulum_viscous":
@@ -396,6 +409,8 @@ class Candidate:
                 return {"Fs_minus_Fc": float(coef[0])}
             case "input_delay":
                 return {"delay": float(path.delay)}
+            case "command_latency":  # the total from the sample instant (command_delay_ticks·h + the path's delay)
+                return {"delay": float(ctx.prep.command_lag + path.delay)}
             case "input_deadzone":
                 return {"width": float(path.deadzone * gain)}
             case "input_saturation":
@@ -415,11 +430,22 @@ class Candidate:
                 return 0.05 < par["gain"] < 20.0
             case "input_delay":
                 return par["delay"] > 0
+            case "command_latency":  # shorter than the nominal one (a longer one is an input_delay on top of it)
+                return 0.0 <= par["delay"] < nominal_latency(rig)
             case "theta_offset":
                 return abs(par["offset"]) < 0.3
             case "arm_lugre":
                 return par.get("Fs_minus_Fc", par.get("Fs", 0.0) - par.get("Fc", 0.0)) > 0
         return True
+
+
+def nominal_latency(rig: RigConfig) -> float:
+    """The rig's own latency from the sample instant to the torque (s): its command_latency effect, else
+    command_delay_ticks·h + its input_delay."""
+    e = rig.effects
+    if e.command_latency is not None:
+        return e.command_latency.delay
+    return rig.control.command_delay_ticks / rig.control.rate_hz + (e.input_delay.delay if e.input_delay else 0.0)
 
 
 INERTIA_STEP = 1e-3  # kg m², for the derivative of ID with respect to J (ID is linear in J: exact)
@@ -429,15 +455,17 @@ CANDIDATES: dict[str, Candidate] = {
     for c in (
         Candidate("arm_coulomb", ARM, "Fc", lookalikes=("input_deadzone",)),
         Candidate("arm_viscous", ARM, "Fv"),
-        Candidate("arm_spring", ARM, "k", lookalikes=("theta_offset",)),
+        Candidate("arm_spring", ARM, "k", lookalikes=("theta_offset",), excludes=("arm_bias",)),
+        Candidate("arm_bias", ARM, "tau", lookalikes=("theta_offset",), excludes=("arm_spring",)),
         Candidate("arm_inertia", ARM, "J", lookalikes=("input_gain",), nonlinear="inertia"),
         Candidate("input_gain", ARM, "gain", lookalikes=("arm_inertia",)),
-        Candidate("input_delay", ARM, "delay", nonlinear="delay"),
+        Candidate("input_delay", ARM, "delay", nonlinear="delay", excludes=("command_latency",)),
+        Candidate("command_latency", ARM, "delay", nonlinear="latency", excludes=("input_delay",)),
         Candidate("input_deadzone", ARM, "width", lookalikes=("arm_coulomb",), nonlinear="deadzone"),
         Candidate("input_saturation", ARM, "limit", nonlinear="limit"),
         Candidate("arm_lugre", ARM, "Fs", nonlinear="vs", requires="arm_coulomb"),
         Candidate("pendulum_viscous", PEND, "bp", lookalikes=("pendulum_coulomb",)),
         Candidate("pendulum_coulomb", PEND, "Fc", lookalikes=("pendulum_viscous",)),
-        Candidate("theta_offset", PEND, "offset", lookalikes=("arm_spring",)),
+        Candidate("theta_offset", PEND, "offset", lookalikes=("arm_spring", "arm_bias")),
     )
 }

@@ -41,7 +41,7 @@ class Spec:
             return replace(self, d_inertia=value)
         if kind == "vs":
             return replace(self, vs=value)
-        return replace(self, path=replace(self.path, **{kind: value}))
+        return replace(self, path=replace(self.path, **{path_field(kind): value}))
 
     def with_effect(self, name: str) -> Spec:
         return replace(self, effects=(*self.effects, name))
@@ -51,7 +51,12 @@ class Spec:
         rest = replace(self, effects=tuple(e for e in self.effects if e != name))
         if kind is None:
             return rest
-        return rest.with_value(kind, 0.0 if kind in ("inertia", "vs") else getattr(self.base, kind))  # type: ignore[arg-type]
+        return rest.with_value(kind, 0.0 if kind in ("inertia", "vs") else getattr(self.base, path_field(kind)))  # type: ignore[arg-type]
+
+
+def path_field(kind: str) -> str:
+    """The InputPath field a nonlinear parameter sets (command_latency moves the same delay as input_delay)."""
+    return "delay" if kind == "latency" else kind
 
 
 @dataclass
@@ -153,7 +158,7 @@ class EquationModel:
             if kind == "vs":  # LuGre's size is its Stribeck peak (linear, judged above); vs only shapes it
                 se[nl_name] = {**se.get(nl_name, {}), "vs": err}
             else:
-                null = 0.0 if kind == "inertia" else getattr(self.spec0().path, kind) or 0.0  # type: ignore[arg-type]
+                null = 0.0 if kind == "inertia" else getattr(self.spec0().path, path_field(kind)) or 0.0  # type: ignore[arg-type]
                 tstat[nl_name] = np.inf if nl_name == "input_saturation" else abs(nl_value - null) / max(err, 1e-300)
                 se[nl_name] = {next(iter(params[nl_name])): err}
         return Evaluation(spec, f, params, tstat, se)
@@ -180,6 +185,9 @@ class EquationModel:
         u = np.abs(self.ctx.prep.u[self.ctx.prep.valid])
         if kind == "delay":
             return np.arange(0.0, 0.05 + 1e-12, 0.00025)
+        if kind == "latency":  # a total shorter than the nominal one: the path's delay from −command_delay_ticks·h up
+            lag, top = self.ctx.prep.command_lag, self.ctx.base_path.delay
+            return np.append(np.arange(-lag, top, 0.00025), top) if top > -lag else np.array([top])
         if kind == "deadzone":
             return np.linspace(0.0, float(np.quantile(u, 0.8)), 41)
         if kind == "limit":
@@ -190,6 +198,14 @@ class EquationModel:
             J = self.ctx.base_inertia
             return J * (np.exp(np.arange(np.log(0.3), np.log(3.0), 0.005)) - 1.0)
         raise KeyError(kind)
+
+    @staticmethod
+    def can_add(spec: Spec, name: str) -> bool:
+        """Whether ``name`` may join ``spec``: not in it yet, what it requires is, nothing it excludes is."""
+        cand = CANDIDATES[name]
+        need = cand.requires
+        return (name not in spec.effects and (need is None or need in spec.effects)
+                and not any(e in spec.effects for e in cand.excludes))
 
     def evaluate_with(self, spec: Spec, name: str) -> Evaluation:
         """``spec`` + candidate ``name``, its nonlinear parameter (if any) profiled on a grid."""
@@ -231,8 +247,7 @@ class EquationModel:
         while True:
             best: tuple[float, Evaluation, str] | None = None
             for name in names:
-                need = CANDIDATES[name].requires
-                if name in current.spec.effects or (need is not None and need not in current.spec.effects):
+                if not self.can_add(current.spec, name):
                     continue
                 ev = self.evaluate_with(current.spec, name)
                 gain = (current.cv - ev.cv) / current.cv

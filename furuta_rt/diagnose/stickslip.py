@@ -274,7 +274,8 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
 
     base = errors(current)
     first: dict[str, WindowFit] = {}
-    names = [n for n in GRIDS if n not in current and (prep.commanded or n != "input_delay") and (only is None or n in only)]
+    names = [n for n in GRIDS if n not in current and (prep.commanded or n != "input_delay") and (only is None or n in only)
+             and not (n == "input_delay" and "command_latency" in current)]
     while names:
         fits = {name: _profile(name, current, base, errors, th.n_blocks, delay_support) for name in names}
         first = first or dict(fits)
