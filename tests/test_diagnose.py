@@ -196,7 +196,7 @@ def test_cli_diagnoses_a_default_rig_csv_without_config(recordings, tmp_path) ->
     assert main(["diagnose", str(path), "--json", str(out), "--report", str(report)]) == 0
     d = json.loads(out.read_text())
     assert {"effects", "fit", "located"} <= set(d)
-    assert set(d["fit"]) == {"metric", "nominal", "augmented"}
+    assert {"metric", "nominal", "augmented", "verdict", "nominal_diverged", "augmented_diverged", "windows"} <= set(d["fit"])
     assert [e["name"] for e in d["effects"]] == ["arm_coulomb"]
     assert set(d["effects"][0]) == {"name", "params"} and set(d["effects"][0]["params"]) == {"Fc"}
     assert isinstance(d["located"], str) and d["located"]

@@ -13,8 +13,11 @@ Pipeline (every physical model from furuta_rt.model / furuta_rt.sim):
    response to them (a torque limit: furuta_rt.diagnose.peaks), simulated with the shared Simulator;
 5. look-alikes — each selected effect against its look-alike: if the data cannot tell them apart,
    both are reported with the experiment that would (gain ↔ inertia decided by the κ test when it can);
-6. verify — multi-step prediction of the nominal and the augmented model on the last part of the
-   recording with parameters fitted on the first part, and closed-loop re-simulation statistics.
+6. prediction gate and metric (furuta_rt.diagnose.gate) — multi-step prediction of informative windows
+   spread over the recording, each with parameters refitted away from it (blocked cross-validation); an
+   effect whose presence makes that prediction significantly worse is moved to ``not_predictive``;
+   the augmented model against the nominal one by a paired test over windows (improved / unchanged /
+   worse / diverges); closed-loop re-simulation statistics.
 
 The rig's own [effects] are part of the nominal model; what is found is reported as corrected totals.
 """
@@ -27,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose import peaks, stickslip, verify
+from furuta_rt.diagnose import gate, peaks, stickslip, verify
 from furuta_rt.diagnose.decay import DecayFit, DecayResult, free_decay, is_free_decay
 from furuta_rt.diagnose.fitting import Stats, fit, paired_t
 from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, STILL_TICKS, Context
@@ -62,8 +65,7 @@ class Options:
     sigma_pend: float = 0.05  # s, for the pendulum equation (its noise is the encoder's, through γ·φ̈)
     sigma_fine: float = 0.005  # s, for nonlinear regressors (signs) and initial states
     thresholds: Thresholds = field(default_factory=Thresholds)
-    horizon: float = 0.3  # s, prediction window
-    holdout: float = 0.3  # last fraction of the recording kept out of the fit for the prediction metric
+    horizon: float | None = None  # s, prediction window (None: from the unstable pole of eq. 6, verify.horizon_ticks)
     max_windows: int = 40
     closed_loop: bool = True
     stick_windows: bool = True  # the stick–slip stage (breakaway torque, actuator timing from the sticks)
@@ -120,6 +122,7 @@ class Diagnosis:
     prediction: dict = field(default_factory=dict, repr=False)  # starts, horizon, train effects (for figures)
     stick: stickslip.WindowStage | None = field(default=None, repr=False)  # the stick–slip windows, when there are sticks
     peak: stickslip.WindowStage | None = field(default=None, repr=False)  # the command-peak windows, when they ran
+    not_predictive: list[dict] = field(default_factory=list)  # effects the prediction gate moved out (gate.run)
 
     @property
     def names(self) -> list[str]:
@@ -135,7 +138,8 @@ class Diagnosis:
     def _json(self) -> dict:
         return {
             "effects": [e.as_json() for e in self.effects],
-            "fit": {k: self.fit[k] for k in ("metric", "nominal", "augmented")},
+            "fit": {k: self.fit[k] for k in FIT_KEYS},
+            "not_predictive": self.not_predictive,
             "located": self.located,
             "ambiguities": self.ambiguities,
             "lookalikes": self.lookalikes,
@@ -146,7 +150,7 @@ class Diagnosis:
             "free_decay": self.decay,
             "stick_windows": self.stick.as_json() if self.stick is not None else None,
             "peak_windows": self.peak.as_json() if self.peak is not None else None,
-            "fit_details": {k: v for k, v in self.fit.items() if k not in ("metric", "nominal", "augmented")},
+            "fit_details": {k: v for k, v in self.fit.items() if k not in FIT_KEYS},
             "closed_loop": self.closed_loop,
             "equations": {
                 eq: {
@@ -160,6 +164,10 @@ class Diagnosis:
             "rig": self.rig,
             "seconds": self.seconds,
         }
+
+
+FIT_KEYS = ("metric", "nominal", "augmented", "verdict", "paired_t", "nominal_diverged", "augmented_diverged", "windows",
+            "window_times_s", "horizon_s")
 
 
 def plain(x: object) -> object:
@@ -309,16 +317,6 @@ SEPARATION_Z = 4.0  # the two predictions of κ must be this many standard error
 CONSISTENT_Z = 2.0  # ... and the favoured one within this many
 
 
-def _windows(prep, start_frac: float, horizon: int, max_windows: int) -> list[int]:
-    v = np.flatnonzero(prep.valid)
-    a = v[0] + int((v[-1] - v[0]) * (1 - start_frac))
-    span = v[-1] - horizon - a
-    if span <= 0:
-        return []
-    spacing = max(horizon // 2, span // max_windows)
-    return verify.window_starts(prep, a, v[-1], horizon, spacing)
-
-
 def balancing_span(rec: Recording, notes: list[str]) -> Recording:
     """A log's longest stretch of balancing ticks (idle or tripped ticks follow other physics: the loop is
     open, the pendulum may hang or be held); the whole recording when it has no such column."""
@@ -402,6 +400,10 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     decay = free_decay(prep, rig) if is_free_decay(prep) else None
     if decay is not None:
         found, ambiguities = _use_decay(decay, found, ambiguities, lookalikes, ctx.known)
+    gated = gate.run(ctx, ems, res, found, opts, notes, stick, peak)  # leaves res refitted without what it moved out
+    found = gated.found
+    dropped = {e["name"] for e in gated.not_predictive}
+    ambiguities = [a for a in ambiguities if a["effects"][0] not in dropped]
     try:
         effects_of(found)
     except ValueError as err:  # e.g. a combination the effects vocabulary forbids
@@ -412,13 +414,13 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     if peak is not None and peak.added:
         located += "; " + peaks.describe(peak)
     prediction: dict = {}
-    fit_summary = _prediction_metric(ctx, ems, res, rig, opts, notes, prediction, decay is not None, stick, peak)
+    fit_summary = _prediction_metric(ctx, gated, found, prediction)
     closed = _closed_loop(rec, rig, found, opts, notes) if opts.closed_loop else None
     return Diagnosis(
         effects=found, fit=fit_summary, located=located, ambiguities=ambiguities, lookalikes=lookalikes,
         equations=res, closed_loop=closed, notes=notes, seconds=time.perf_counter() - t0, rig=rig.name, context=ctx,
         models=ems, prediction=prediction, decay=decay.as_json() if decay is not None else None, decay_result=decay,
-        stick=stick, peak=peak,
+        stick=stick, peak=peak, not_predictive=gated.not_predictive,
     )
 
 
@@ -556,55 +558,25 @@ def _use_decay(
     return found, ambiguities
 
 
-def _prediction_metric(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResult], rig: RigConfig,
-                       opts: Options, notes: list[str], keep: dict, decay: bool = False,
-                       stick: stickslip.WindowStage | None = None, peak: stickslip.WindowStage | None = None) -> dict:
-    prep = ctx.prep
-    horizon = max(5, round(opts.horizon / prep.dt))
-    starts = _windows(prep, opts.holdout, horizon, opts.max_windows)
-    split_t = prep.t[starts[0]] if starts else prep.t[-1]
-    # the selected effects refitted on the part before the held-out windows
-    train_found: list[Found] = []
-    for eq, r in res.items():
-        if not r.selected.spec.effects:
-            continue
-        em = ems[eq]
-        train = EquationModel(ctx, eq, opts.thresholds, row_filter=prep.t < split_t - 2 * opts.horizon)
-        if train.n_rows < 20 * opts.thresholds.n_blocks:
-            train = em
-            notes.append(f"{eq} equation: too little data before the held-out part; the prediction uses all-data parameters")
-        ev = refit(train, r.selected.spec)
-        train_found += [Found(n, eq, _within_bounds(n, ev.params[n]), {}, 0.0, 0.0) for n in ev.spec.effects
-                        if not (n in LUGRE_CONTAINS and "arm_lugre" in ev.spec.effects)]
-    for stage, least in ((stick, stickslip.MIN_WINDOWS), (peak, peaks.MIN_PEAK_WINDOWS)):
-        if stage is not None and stage.added:  # the window stages' effects from the windows before the held-out part
-            values = stickslip.values_before(stage, int(np.searchsorted(prep.t, split_t)), least)
-            if values is None:
-                values = stage.added
-                notes.append(f"too few windows before the held-out part for {', '.join(stage.added)}; the prediction "
-                             "uses its all-data parameters")
-            train_found = [f for f in train_found if f.name not in stage.replaces]
-            train_found += [Found(n, ARM, p, {}, 0.0, 0.0) for n, p in values.items()]
-    if decay:  # the pivot friction from the cycles before the held-out part
-        part = free_decay(prep, rig, stop_time=float(split_t))
-        if part is not None:
-            train_found = [e for e in train_found if e.name not in PENDULUM_FRICTION] + _decay_effects(part.fits[part.best])
+def _prediction_metric(ctx: Context, gated: gate.Gated, found: list[Found], keep: dict) -> dict:
+    """The held-out fit (furuta_rt.diagnose.gate): the nominal and the gated augmented model's predictions of the
+    informative windows, and the verdict of their paired comparison."""
+    plan, nominal_p, aug_p = gated.plan, gated.nominal, gated.augmented
     try:
-        augmented = effects_of(train_found)
+        augmented = effects_of(found)
     except ValueError:
         augmented = Effects()
-    keep.update(starts=starts, horizon=horizon, augmented=augmented, substep_hz=opts.substep_hz)
-    nominal_p = verify.predict(rig, Effects(), prep, ctx.fine, starts, horizon, opts.substep_hz)
-    if train_found:
-        aug_p = verify.predict(rig, augmented, prep, ctx.fine, starts, horizon, opts.substep_hz)
-    else:
-        aug_p = nominal_p
+    keep.update(starts=plan.starts, horizon=plan.horizon, augmented=augmented, substep_hz=gated.substep_hz)
+    t = ctx.prep.t
     return {
         "metric": verify.PREDICTION_METRIC, "nominal": nominal_p.nrmse, "augmented": aug_p.nrmse,
+        **verify.compare(nominal_p, aug_p),
         "nominal_theta": nominal_p.nrmse_theta, "nominal_phi": nominal_p.nrmse_phi,
         "augmented_theta": aug_p.nrmse_theta, "augmented_phi": aug_p.nrmse_phi,
-        "windows": nominal_p.windows, "horizon_s": horizon * prep.dt, "held_out_from_s": float(split_t - prep.t[0]),
-        "train_params": {f.name: f.params for f in train_found},
+        "windows": nominal_p.windows, "window_times_s": [float(t[k] - t[0]) for k in plan.starts],
+        "horizon_s": plan.horizon * ctx.prep.dt, "folds": plan.folds, "candidate_windows": plan.candidates,
+        "held_out_from_s": float(t[plan.starts[0]] - t[0]) if plan.starts else float("nan"),
+        "train_params": gated.fold_params,
     }
 
 

@@ -1,0 +1,237 @@
+"""The prediction gate and the held-out fit metric (issue 13): nothing that predicts worse is reported as found.
+
+Windows (furuta_rt.diagnose.verify): the informative ones, spread over the whole recording, horizon from the
+unstable pole of eq. 6. Blocked cross-validation: the windows, in time order, form N_FOLDS contiguous folds; each
+fold's windows are predicted with the effects refitted (furuta_rt.diagnose.engine.refit on an EquationModel with a
+row filter) on the recording outside the fold's span and a margin around it, so no window is predicted with
+parameters that saw it. The window stages' effects take their values from the stage's windows outside that span
+(WindowFit.value_on); a free decay's from the whole decay (its fit is already leave-one-cycle-out).
+
+The gate, on the effects that the inverse-dynamics selection found (the window stages' and the free decay's are
+judged on their own held-out windows and pass as they are): an effect is moved to ``not_predictive`` when the model
+without it (the others refitted) predicts the windows better by a paired t ≥ T_HARM and by ≥ MIN_RISE relative, or
+diverges in at least MIN_EXTRA_DIVERGED fewer windows — evidence of harm; no evidence keeps it (a small real effect
+such as a pendulum damping of 1e-4 N m s may change a 0.3 s prediction by < 1 %). The worst one goes first, then the
+rest are judged again. When what is left still predicts significantly worse than the nominal model, or diverges
+more, and removing all of it does better, all of it is moved.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from furuta_rt.config import RigConfig
+from furuta_rt.diagnose import verify
+from furuta_rt.diagnose.fitting import paired_t
+from furuta_rt.diagnose.select import EquationModel, Spec
+from furuta_rt.diagnose.signals import MAX_SIGMA
+from furuta_rt.diagnose.stickslip import WindowStage
+from furuta_rt.model.effects import Effects
+
+if TYPE_CHECKING:
+    from furuta_rt.diagnose.engine import EquationResult, Found, Options
+    from furuta_rt.diagnose.library import Context
+
+N_FOLDS = 4
+T_HARM = 3.0  # paired t over windows: the model without the effect predicts better
+MIN_RISE = 0.01  # ... and the effect raises the prediction error by at least this (relative)
+MIN_EXTRA_DIVERGED = 2  # or the effect makes at least this many more windows diverge
+ID = "inverse dynamics"
+
+
+@dataclass
+class Plan:
+    """The windows to predict, their folds and each fold's training rows."""
+
+    starts: list[int]
+    horizon: int
+    fold_of: list[int]
+    train: list[np.ndarray]  # per fold: the samples outside the fold's span and margin
+    spans: list[tuple[int, int]]  # per fold: [first, last) sample held out
+    candidates: int
+
+    @property
+    def folds(self) -> int:
+        return len(self.train)
+
+
+def make_plan(prep, rig: RigConfig, max_windows: int, horizon_s: float | None = None) -> Plan:
+    """Informative windows (verify.informative_starts) in N_FOLDS contiguous folds."""
+    horizon = verify.horizon_ticks(rig, prep.dt) if horizon_s is None else max(5, round(horizon_s / prep.dt))
+    starts, candidates = verify.informative_starts(prep, horizon, max_windows)
+    groups = np.array_split(np.arange(len(starts)), min(N_FOLDS, len(starts))) if starts else []
+    margin = 2 * horizon + round(5 * MAX_SIGMA / prep.dt)  # the refit's filtered rows reach this far
+    fold_of = [0] * len(starts)
+    train, spans = [], []
+    for f, g in enumerate(groups):
+        lo = max(0, starts[g[0]] - margin)
+        hi = min(prep.n, starts[g[-1]] + horizon + 1 + margin)
+        mask = np.ones(prep.n, dtype=bool)
+        mask[lo:hi] = False
+        train.append(mask)
+        spans.append((lo, hi))
+        for i in g:
+            fold_of[i] = f
+    return Plan(starts, horizon, fold_of, train, spans, candidates)
+
+
+@dataclass
+class Gated:
+    """What the gate leaves: the found effects that predict, those moved out, and the final predictions."""
+
+    found: list[Found]
+    not_predictive: list[dict]
+    plan: Plan
+    nominal: verify.Prediction
+    augmented: verify.Prediction
+    fold_params: list[dict[str, dict[str, float]]] = field(default_factory=list)
+    substep_hz: float = 2000.0
+
+
+class Gate:
+    """Predictions of the recording's windows for sets of found effects, refitted per fold."""
+
+    def __init__(self, ctx: Context, ems: dict[str, EquationModel], opts: Options, plan: Plan,
+                 stages: list[tuple[WindowStage, int]], notes: list[str]) -> None:
+        self.ctx, self.ems, self.opts, self.plan, self.stages, self.notes = ctx, ems, opts, plan, stages, notes
+        self._train: dict[tuple[str, int], EquationModel | None] = {}
+        self._noted: set[str] = set()
+
+    def train_model(self, eq: str, fold: int) -> EquationModel | None:
+        """The equation's rows outside the fold (None: too few, the all-data fit is used)."""
+        key = (eq, fold)
+        if key not in self._train:
+            em = EquationModel(self.ctx, eq, self.opts.thresholds, row_filter=self.plan.train[fold])
+            ok = em.n_rows >= 20 * self.opts.thresholds.n_blocks
+            if not ok and eq not in self._noted:
+                self._noted.add(eq)
+                self.notes.append(f"{eq} equation: too few rows outside some prediction folds; those windows use the "
+                                  "all-data parameters")
+            self._train[key] = em if ok else None
+        return self._train[key]
+
+    def fold_params(self, found: list[Found], specs: dict[str, Spec], fold: int) -> dict[str, dict[str, float]]:
+        """The found effects' parameters for predicting one fold's windows."""
+        from furuta_rt.diagnose.engine import LUGRE_CONTAINS, _within_bounds, refit
+
+        out: dict[str, dict[str, float]] = {}
+        names = {f.name for f in found}
+        for eq, spec in specs.items():
+            if not spec.effects or not any(f.source == ID and f.equation == eq for f in found):
+                continue
+            em = self.train_model(eq, fold)
+            ev = refit(em, spec) if em is not None else refit(self.ems[eq], spec)
+            for n in ev.spec.effects:
+                if n in names and not (n in LUGRE_CONTAINS and "arm_lugre" in ev.spec.effects):
+                    out[n] = _within_bounds(n, ev.params[n])
+        lo, hi = self.plan.spans[fold]
+        for stage, least in self.stages:
+            outside = np.array([w.start + w.horizon < lo or w.start > hi for w in stage.windows])
+            for name, fit in stage.fits.items():
+                if name in names:
+                    value = fit.value_on(outside) if outside.sum() >= least else fit.value
+                    out[name] = {**stage.added[name], fit.param: value}
+        for f in found:  # the rest (a free decay's, or a stage's without a per-window fit): as found
+            out.setdefault(f.name, f.params)
+        return out
+
+    def predict(self, found: list[Found], specs: dict[str, Spec]) -> tuple[verify.Prediction, list[dict]]:
+        """The windows predicted with ``found`` (inverse-dynamics ones refitted per fold from ``specs``)."""
+        params = [self.fold_params(found, specs, f) if found else {} for f in range(self.plan.folds)]
+        try:
+            sets = [Effects.model_validate(p) for p in params]
+        except ValueError:  # a combination the effects vocabulary forbids: not simulated
+            sets = [Effects() for _ in params]
+        p = self.plan
+        return verify.predict(self.ctx.rig, sets, self.ctx.prep, self.ctx.fine, p.starts, p.horizon,
+                              self.opts.substep_hz, p.fold_of), params
+
+
+def harm(with_: verify.Prediction, without: verify.Prediction) -> tuple[bool, float]:
+    """(evidence that what ``with_`` has and ``without`` lacks harms the prediction, paired t of with − without)."""
+    t = paired_t(with_.per_window, without.per_window) if with_.windows > 1 else 0.0
+    rise = (with_.nrmse - without.nrmse) / without.nrmse if without.nrmse > 0 else 0.0
+    extra = int(with_.diverged.sum()) - int(without.diverged.sum())
+    return (t >= T_HARM and rise >= MIN_RISE) or (extra >= MIN_EXTRA_DIVERGED and t > 0), t
+
+
+def _numbers(w: verify.Prediction, wo: verify.Prediction, t: float) -> dict:
+    return {"nrmse_with": w.nrmse, "nrmse_without": wo.nrmse, "paired_t": t, "windows": w.windows,
+            "diverged_with": int(w.diverged.sum()), "diverged_without": int(wo.diverged.sum())}
+
+
+def _reason(f: Found, w: verify.Prediction, wo: verify.Prediction, t: float) -> str:
+    text = (f"lowers the inverse-dynamics residual by {100 * max(f.cv_gain, 0.0):.1f} % but the held-out prediction "
+            f"error rises {wo.nrmse:.3f} → {w.nrmse:.3f} (paired t = {t:.1f} over {w.windows} windows)")
+    dw, dwo = int(w.diverged.sum()), int(wo.diverged.sum())
+    if dw > dwo:
+        text += f"; the prediction diverges in {dw} windows with it, {dwo} without"
+    return text
+
+
+def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResult], found: list[Found],
+        opts: Options, notes: list[str], stick: WindowStage | None = None, peak: WindowStage | None = None) -> Gated:
+    """The prediction gate; ``res`` is updated in place (each equation refitted without the effects moved out)."""
+    from furuta_rt.diagnose import peaks, stickslip
+    from furuta_rt.diagnose.engine import EquationResult, _found, refit
+
+    plan = make_plan(ctx.prep, ctx.rig, opts.max_windows, opts.horizon)
+    stages = [(s, least) for s, least in ((stick, stickslip.MIN_WINDOWS), (peak, peaks.MIN_PEAK_WINDOWS))
+              if s is not None and s.added]
+    gate = Gate(ctx, ems, opts, plan, stages, notes)
+    specs = {eq: r.selected.spec for eq, r in res.items()}
+    nominal, _ = gate.predict([], specs)
+    if not plan.starts:
+        notes.append("the recording has no window to predict; the prediction gate and metric are skipped")
+        return Gated(found, [], plan, nominal, nominal, [], opts.substep_hz)
+    found = list(found)
+    current, params = gate.predict(found, specs) if found else (nominal, [])
+    moved: list[dict] = []
+
+    def drop(gone: list[Found], reason: dict[str, str], numbers: dict[str, dict]) -> None:
+        nonlocal found
+        for eq in {f.equation for f in gone}:
+            spec = specs[eq]
+            for f in gone:
+                if f.equation == eq:
+                    spec = spec.without(f.name)
+            r = res[eq]
+            res[eq] = EquationResult(eq, r.rows, r.nominal, refit(ems[eq], spec) if spec.effects else r.nominal,
+                                     r.trace, r.location)
+            specs[eq] = res[eq].selected.spec
+            names = {f.name for f in found if f.source == ID and f.equation == eq} - {f.name for f in gone}
+            fresh = {f.name: f for f in _found(ems[eq], res[eq], []) if f.name in names}
+            found = [fresh.get(f.name, f) if f.source == ID and f.equation == eq else f for f in found]
+        found = [f for f in found if f not in gone]
+        moved.extend({"name": f.name, "equation": f.equation, "params": f.params, "reason": reason[f.name],
+                      "prediction": numbers[f.name]} for f in gone)
+
+    while True:  # the most harmful effect first, then the rest again
+        worst = None
+        for f in [f for f in found if f.source == ID]:
+            rest = [g for g in found if g is not f]
+            s = {**specs, f.equation: specs[f.equation].without(f.name)}
+            without, _ = gate.predict(rest, s)
+            bad, t = harm(current, without)
+            if bad and (worst is None or t > worst[1]):
+                worst = (f, t, without)
+        if worst is None:
+            break
+        f, t, without = worst
+        drop([f], {f.name: _reason(f, current, without, t)}, {f.name: _numbers(current, without, t)})
+        current, params = gate.predict(found, specs) if found else (nominal, [])
+    ids = [f for f in found if f.source == ID]
+    if ids and verify.compare(nominal, current)["verdict"] in ("worse", "diverges"):
+        rest = [f for f in found if f.source != ID]
+        without, _ = gate.predict(rest, specs) if rest else (nominal, [])
+        bad, t = harm(current, without)
+        if bad:
+            why = (f"together with the other inverse-dynamics effects it predicts the held-out windows worse than the "
+                   f"nominal model ({nominal.nrmse:.3f} → {current.nrmse:.3f}); without them {without.nrmse:.3f} "
+                   f"(paired t = {t:.1f} over {current.windows} windows)")
+            drop(ids, {f.name: why for f in ids}, {f.name: _numbers(current, without, t) for f in ids})
+            current, params = gate.predict(found, specs) if found else (nominal, [])
+    return Gated(found, moved, plan, nominal, current, params, opts.substep_hz)
