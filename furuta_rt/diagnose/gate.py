@@ -7,13 +7,14 @@ row filter) on the recording outside the fold's span and a margin around it, so 
 parameters that saw it. The window stages' effects take their values from the stage's windows outside that span
 (WindowFit.value_on); a free decay's from the whole decay (its fit is already leave-one-cycle-out).
 
-The gate, on the effects that the inverse-dynamics selection found (the window stages' and the free decay's are
-judged on their own held-out windows and pass as they are): an effect is moved to ``not_predictive`` when the model
-without it (the others refitted) predicts the windows better by a paired t ≥ T_HARM and by ≥ MIN_RISE relative, or
-diverges in at least MIN_EXTRA_DIVERGED fewer windows — evidence of harm; no evidence keeps it (a small real effect
-such as a pendulum damping of 1e-4 N m s may change a 0.3 s prediction by < 1 %). The worst one goes first, then the
-rest are judged again. When what is left still predicts significantly worse than the nominal model, or diverges
-more, and removing all of it does better, all of it is moved.
+The gate, on every found effect except the window stages' and the free decay's (those are chosen on their own
+held-out windows — sticks, command peaks, cycles — and pass as they are, though they stay in the augmented model
+that the metric judges; inverse-dynamics effects are refitted per fold, any other is taken at its value): an effect
+is moved to ``not_predictive`` when the model without it (the others refitted) predicts the windows better by a
+paired t ≥ T_HARM and by ≥ MIN_RISE relative, or diverges in at least MIN_EXTRA_DIVERGED fewer windows — evidence
+of harm; no evidence keeps it (a small real effect such as a pendulum damping of 1e-4 N m s may change a 0.3 s
+prediction by < 1 %). The worst one goes first, then the rest are judged again. When what is left still predicts
+significantly worse than the nominal model, or diverges more, and removing all of it does better, all of it is moved.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ T_HARM = 3.0  # paired t over windows: the model without the effect predicts bet
 MIN_RISE = 0.01  # ... and the effect raises the prediction error by at least this (relative)
 MIN_EXTRA_DIVERGED = 2  # or the effect makes at least this many more windows diverge
 ID = "inverse dynamics"
+EXEMPT = ("stick windows", "peak windows", "free decay")  # sources judged on their own held-out windows
 
 
 @dataclass
@@ -193,10 +195,10 @@ def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResu
 
     def drop(gone: list[Found], reason: dict[str, str], numbers: dict[str, dict]) -> None:
         nonlocal found
-        for eq in {f.equation for f in gone}:
+        for eq in {f.equation for f in gone if f.source == ID}:
             spec = specs[eq]
             for f in gone:
-                if f.equation == eq:
+                if f.equation == eq and f.source == ID:
                     spec = spec.without(f.name)
             r = res[eq]
             res[eq] = EquationResult(eq, r.rows, r.nominal, refit(ems[eq], spec) if spec.effects else r.nominal,
@@ -211,9 +213,9 @@ def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResu
 
     while True:  # the most harmful effect first, then the rest again
         worst = None
-        for f in [f for f in found if f.source == ID]:
+        for f in [f for f in found if f.source not in EXEMPT]:
             rest = [g for g in found if g is not f]
-            s = {**specs, f.equation: specs[f.equation].without(f.name)}
+            s = {**specs, f.equation: specs[f.equation].without(f.name)} if f.source == ID else specs
             without, _ = gate.predict(rest, s)
             bad, t = harm(current, without)
             if bad and (worst is None or t > worst[1]):
@@ -223,13 +225,13 @@ def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResu
         f, t, without = worst
         drop([f], {f.name: _reason(f, current, without, t)}, {f.name: _numbers(current, without, t)})
         current, params = gate.predict(found, specs) if found else (nominal, [])
-    ids = [f for f in found if f.source == ID]
+    ids = [f for f in found if f.source not in EXEMPT]
     if ids and verify.compare(nominal, current)["verdict"] in ("worse", "diverges"):
-        rest = [f for f in found if f.source != ID]
+        rest = [f for f in found if f.source in EXEMPT]
         without, _ = gate.predict(rest, specs) if rest else (nominal, [])
         bad, t = harm(current, without)
         if bad:
-            why = (f"together with the other inverse-dynamics effects it predicts the held-out windows worse than the "
+            why = (f"together with the other gated effects it predicts the held-out windows worse than the "
                    f"nominal model ({nominal.nrmse:.3f} → {current.nrmse:.3f}); without them {without.nrmse:.3f} "
                    f"(paired t = {t:.1f} over {current.windows} windows)")
             drop(ids, {f.name: why for f in ids}, {f.name: _numbers(current, without, t) for f in ids})
