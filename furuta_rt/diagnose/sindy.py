@@ -98,3 +98,85 @@ def interpret(eqs: dict[str, dict[str, float]], rig: RigConfig) -> tuple[dict, d
         J = rig.plant.arm_inertia
         named["arm_inertia"] = {"J": J + p.beta * (1.0 / g - 1.0)}
     return extra, named
+
+
+@dataclass
+class ResidualSindyResult:
+    equations: dict[str, dict[str, float]]  # "pendulum"/"arm" → {term: coefficient (N m per unit of the term)}
+    named: dict[str, dict[str, float]]  # the effects those terms would mean, with parameters
+    seconds: float
+
+
+def fit_sindy_residual(rec: Recording, rig: RigConfig, threshold: float = 0.2) -> ResidualSindyResult:
+    """Discrepancy modelling (Kaheman, Kaiser, Strom, Kutz & Brunton 2019): SINDy on what the nominal model leaves
+    out. The residual is eq. 4's inverse dynamics (FurutaPlant.inverse_dynamics: the joint torques the measured
+    motion needs) minus the nominal torques (the rig's actuator on the command shifted by the configured latency),
+    regressed with the same candidates and thresholding as ``fit_sindy`` (degree-1 polynomials in θ, θ̇, φ, φ̇, u
+    and sgn of each). Its coefficients are torques, so they read directly as effects (an arm inertia error would
+    need φ̈ among the candidates: like ``fit_sindy``, it has none)."""
+    import time
+
+    import pysindy as ps
+
+    from furuta_rt.model.rig import RigModel
+
+    t0 = time.perf_counter()
+    dt = float(np.median(np.diff(rec.t)))
+    diff = ps.SmoothedFiniteDifference(smoother_kws={"window_length": 21, "polyorder": 3})
+    th = np.asarray(rec.theta, float)
+    thd = np.asarray(rec.theta_dot, float) if rec.theta_dot is not None else np.asarray(diff(th, t=dt)).ravel()
+    ph = np.asarray(rec.phi, float)
+    phd = np.asarray(diff(ph, t=dt)).ravel()
+    thdd = np.asarray(diff(thd, t=dt)).ravel()
+    phdd = np.asarray(diff(phd, t=dt)).ravel()
+    D = rig.control.command_delay_ticks
+    u = np.concatenate([np.zeros(D), np.asarray(rec.u, float)[: len(rec.u) - D]])
+    model = RigModel.from_config(rig)
+    terms = np.array([model.actuator.torque_terms(float(v)) for v in u])
+    tau_arm_nominal = terms[:, 0] - terms[:, 1] * phd
+    tau_pend, tau_arm = model.plant.inverse_dynamics(th, thd, phd, thdd, phdd)
+    residual = np.column_stack([np.zeros_like(th), tau_pend, np.zeros_like(th), tau_arm - tau_arm_nominal])
+    # each equation in units of its own rms, so that the threshold means the same as in ``fit_sindy``
+    scale = np.array([1.0, float(np.std(residual[:, 1])) or 1.0, 1.0, float(np.std(residual[:, 3])) or 1.0])
+    residual = residual / scale
+    x = np.column_stack([th, thd, ph, phd])
+    sign_lib = ps.CustomLibrary(library_functions=[lambda s: np.sign(s)], function_names=[lambda s: f"sgn({s})"])
+    lib = ps.GeneralizedLibrary([ps.PolynomialLibrary(degree=1), sign_lib])
+    sindy = ps.SINDy(feature_library=lib, optimizer=ps.STLSQ(threshold=threshold, normalize_columns=True))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sindy.fit(x, t=dt, x_dot=residual, u=u[:, None], feature_names=[*NAMES, "u"])
+    names = sindy.get_feature_names()
+    coef = sindy.coefficients() * scale[:, None]
+    eqs = {"pendulum": dict(zip(names, coef[1], strict=True)), "arm": dict(zip(names, coef[3], strict=True))}
+    eqs = {k: {n: float(c) for n, c in v.items() if c != 0.0} for k, v in eqs.items()}
+    cos_sign = float(np.sign(np.mean(np.cos(th)))) or 1.0
+    return ResidualSindyResult(eqs, interpret_residual(eqs, rig, cos_sign), time.perf_counter() - t0)
+
+
+def interpret_residual(eqs: dict[str, dict[str, float]], rig: RigConfig, cos_sign: float = 1.0) -> dict:
+    """The effects the residual's torque terms would mean: −c·sgn φ̇ → arm_coulomb, −c·φ̇ → arm_viscous, −k(φ − φ0)
+    → arm_spring, a constant arm torque → arm_bias, c·u → input_gain 1 + c/(torque per command), −c·θ̇ →
+    pendulum_viscous, −c·sgn θ̇ → pendulum_coulomb, a constant pendulum torque −ε·offset·cos θ → theta_offset."""
+    arm, pend = eqs["arm"], eqs["pendulum"]
+    a = rig.actuator
+    per_command = 1.0 if a.kind == "torque" else a.Kt / a.R  # type: ignore[operator]
+    named: dict[str, dict[str, float]] = {}
+    if "sgn(phd)" in arm:
+        named["arm_coulomb"] = {"Fc": -arm["sgn(phd)"]}
+    if "phd" in arm:
+        named["arm_viscous"] = {"Fv": -arm["phd"]}
+    if "ph" in arm:
+        k = -arm["ph"]
+        named["arm_spring"] = {"k": k, "phi0": arm.get("1", 0.0) / k if k else 0.0}
+    elif "1" in arm:
+        named["arm_bias"] = {"tau": arm["1"]}
+    if "u" in arm:
+        named["input_gain"] = {"gain": 1.0 + arm["u"] / per_command}
+    if "thd" in pend:
+        named["pendulum_viscous"] = {"bp": -pend["thd"]}
+    if "sgn(thd)" in pend:
+        named["pendulum_coulomb"] = {"Fc": -pend["sgn(thd)"]}
+    if "1" in pend:
+        named["theta_offset"] = {"offset": -pend["1"] / (rig.lumped().epsilon * cos_sign)}
+    return named

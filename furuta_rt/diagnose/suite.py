@@ -276,3 +276,174 @@ def totals(scores: list[CaseScore]) -> dict:
 def write_json(path: Path, scores: list[CaseScore], extra: dict | None = None) -> None:
     path.write_text(json.dumps({"cases": [s.as_json() for s in scores], "totals": totals(scores), **(extra or {})},
                                indent=1, default=float))
+
+
+# ------------------------------------------------------------------------ the realistic group (issue 14, item 7)
+REALISTIC_CACHE_VERSION = 1
+# the arm damping of each shape's true rig: Quanser's courseware Dr for the QUBE, the authors' fitted b1 for macstepien
+REALISTIC_ARM_VISCOUS = {"qube_servo2": 0.0015, "macstepien": 0.0117}
+COMBINED = ("input_gain", "arm_inertia", "arm_viscous")  # scored through the identifiable combinations
+LATENCY = ("command_latency", "input_delay")
+
+
+@dataclass(frozen=True)
+class RealisticCase:
+    """A recording of a voltage-driven rig shaped like ``shape`` (a shipped rig), whose true physics is ``effects``
+    on top of it and whose command acts ``latency_ticks`` after the sample (the config says its
+    ``command_delay_ticks``), driven by ``excitation`` (furuta_rt.diagnose.suite_realistic)."""
+
+    name: str
+    shape: str
+    excitation: str  # sine | chirp | step | swingup | balance
+    effects: tuple[str, ...]
+    latency_ticks: float
+    seed: int
+    duration: float = 30.0
+    held_out: bool = False
+
+    @property
+    def reference(self) -> str:
+        return self.excitation
+
+    @property
+    def injected(self) -> dict[str, dict[str, float]]:
+        return effects_from_assignments(list(self.effects)).present()
+
+    def key(self) -> str:
+        text = repr(("realistic", self.shape, self.excitation, self.effects, self.latency_ticks, self.seed,
+                     self.duration, REALISTIC_CACHE_VERSION))
+        return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+
+def _r(shape: str, excitation: str, seed: int, gain: float, j_factor: float, latency: float, *extra: str,
+       held_out: bool = False) -> RealisticCase:
+    """A realistic case: torque per volt × ``gain``, arm inertia × ``j_factor``, the shape's arm damping, a total
+    latency of ``latency`` ticks (a ``command_latency`` effect where it differs from the config's), and ``extra``."""
+    nominal = load_rig(shape)
+    J = float(f"{j_factor * nominal.plant.arm_inertia:.4g}")
+    effects = [f"input_gain.gain={gain}", *([f"arm_inertia.J={J}"] if j_factor != 1.0 else []),
+               f"arm_viscous.Fv={REALISTIC_ARM_VISCOUS[shape]}", *extra]
+    if latency != nominal.control.command_delay_ticks:
+        effects.append(f"command_latency.delay={latency / nominal.control.rate_hz:.6g}")
+    tags = "+".join(dict.fromkeys(e.split(".")[0] for e in extra))
+    name = f"{shape}/{excitation}" + (f"+{tags}" if tags else "")
+    return RealisticCase(name, shape, excitation, tuple(effects), float(latency), seed, held_out=held_out)
+
+
+def realistic_cases() -> list[RealisticCase]:
+    """Voltage-driven DC-motor rigs shaped like the QUBE-Servo 2 and the macstepien rig: torque per volt ×0.3…×10,
+    arm inertia ×0.5…×2, latency 0–3 ticks from the config's 1, open-loop sine/chirp/step excitation with the
+    pendulum hanging, swing-ups and balancing, encoder θ, arm bias, a cable spring with Coulomb friction.
+    The first ten are the in-sample part (looked at while building); the ``held_out`` ones (other seeds, sizes
+    and combinations) are listed and printed apart and are not tuned on."""
+    spring = ("arm_spring.k=0.002", "arm_spring.phi0=0.1", "arm_coulomb.Fc=0.002")
+    spring_m = ("arm_spring.k=0.01", "arm_spring.phi0=-0.2", "arm_coulomb.Fc=0.006")
+    return [
+        _r("qube_servo2", "sine", 101, 3.0, 1.5, 1),
+        _r("qube_servo2", "chirp", 102, 0.5, 0.7, 2, *spring),
+        _r("qube_servo2", "step", 103, 5.0, 1.0, 0),
+        _r("qube_servo2", "swingup", 104, 2.0, 1.3, 3, "pendulum_viscous.bp=2e-05"),
+        _r("qube_servo2", "balance", 105, 1.5, 0.6, 1, "arm_bias.tau=0.0005"),
+        _r("macstepien", "step", 106, 7.0, 0.5, 2),
+        _r("macstepien", "sine", 107, 10.0, 1.0, 1, "arm_bias.tau=0.003"),
+        _r("macstepien", "swingup", 108, 7.0, 0.5, 2, "pendulum_viscous.bp=1.8e-05"),
+        _r("macstepien", "chirp", 109, 0.3, 2.0, 4, *spring_m),
+        _r("macstepien", "balance", 110, 3.0, 1.2, 0),
+        # held out
+        _r("qube_servo2", "sine", 201, 8.0, 0.8, 2.5, held_out=True),
+        _r("qube_servo2", "swingup", 202, 1.2, 1.8, 1, "arm_bias.tau=0.0004", held_out=True),
+        _r("qube_servo2", "chirp", 203, 2.0, 0.5, 1, "pendulum_viscous.bp=1e-05", held_out=True),
+        _r("macstepien", "step", 204, 4.0, 1.5, 3, held_out=True),
+        _r("macstepien", "balance", 205, 0.7, 0.8, 1.5, "arm_bias.tau=-0.002", held_out=True),
+        _r("macstepien", "sine", 206, 6.0, 0.6, 0, *spring_m, held_out=True),
+    ]
+
+
+def generate_realistic(case: RealisticCase, cache: Path | None = None) -> Recording:
+    """The case's recording (from the cache when there)."""
+    from furuta_rt.diagnose.suite_realistic import simulate
+
+    path = cache / f"{case.key()}.pkl" if cache else None
+    if path is not None and path.exists():
+        with path.open("rb") as fh:
+            return pickle.load(fh)
+    rec = simulate(load_rig(case.shape), case.shape, effects_from_assignments(list(case.effects)), case.excitation,
+                   case.duration, case.seed)
+    rec.meta["case"] = case.name
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with path.open("wb") as fh:
+            pickle.dump(rec, fh)
+    return rec
+
+
+def arm_combinations(rig: RigConfig, gain: float, J: float, Fv: float) -> dict[str, float]:
+    """The identifiable combinations of a voltage-driven arm: the steady speed per volt g·(Kt/R)/(Kt·Ke/R + Fv)
+    (rad/s per V) and the time constant β/(Kt·Ke/R + Fv) (s; β the arm row's inertia with the arm's J)."""
+    a = rig.actuator
+    d = a.Kt * a.Ke / a.R + Fv  # type: ignore[operator]
+    beta = rig.lumped().beta - rig.plant.arm_inertia + J
+    return {"speed_per_volt": gain * a.Kt / a.R / d, "time_constant": beta / d}  # type: ignore[operator]
+
+
+def _reported_arm(rig: RigConfig, reported: dict[str, dict[str, float]]) -> tuple[float, float, float]:
+    g = reported.get("input_gain", {}).get("gain", 1.0)
+    J = reported.get("arm_inertia", {}).get("J", rig.plant.arm_inertia)
+    Fv = reported.get("arm_viscous", {}).get("Fv", 0.0)
+    return g, J, Fv
+
+
+def score_realistic(case: RealisticCase, diagnosis_json: dict, seconds: float) -> CaseScore:
+    """Score like ``score``: the arm's gain, inertia and damping through the identifiable combinations (within 20 %),
+    every other injected effect by its main parameter (within 20 %), the latency within half a tick where it differs
+    from the config; a false discovery is a reported effect not injected (a latency reported where there is none
+    counts when it is more than half a tick off the config's)."""
+    rig = load_rig(case.shape)
+    injected = case.injected
+    reported = {e["name"]: e["params"] for e in diagnosis_json["effects"]}
+    detected: dict[str, bool] = {}
+    errors: dict[str, float] = {}
+    g, J, Fv = _reported_arm(rig, injected)
+    true = arm_combinations(rig, g, J, Fv)
+    est = arm_combinations(rig, *_reported_arm(rig, reported))
+    for name, value in true.items():
+        errors[name] = abs(est[name] - value) / abs(value)
+        detected[name] = errors[name] <= TOLERANCE
+    for name, params in injected.items():
+        if name in COMBINED or name in LATENCY:
+            continue
+        key = MAIN[name]
+        if name in reported:
+            errors[name] = abs(reported[name][key] - params[key]) / abs(params[key])
+        detected[name] = errors.get(name, np.inf) <= TOLERANCE
+    h = 1.0 / rig.control.rate_hz
+    configured = rig.control.command_delay_ticks * h
+    true_latency = case.latency_ticks * h
+    if "command_latency" in reported:
+        est_latency = reported["command_latency"]["delay"]
+    else:
+        est_latency = configured + reported.get("input_delay", {}).get("delay", 0.0)
+    false = [n for n in reported if n not in injected and n not in COMBINED and n not in LATENCY]
+    if abs(true_latency - configured) > 1e-9:
+        errors["latency"] = abs(est_latency - true_latency) / h  # in ticks
+        detected["latency"] = errors["latency"] < 0.5
+    elif abs(est_latency - configured) > 0.5 * h:
+        false.append("command_latency")
+    alternatives = {a["alternative"]["name"]: a for a in diagnosis_json.get("ambiguities", [])}
+    covered = {a["effects"][0] for n, a in alternatives.items() if n in injected}
+    false = [n for n in false if n not in covered]
+    fit = diagnosis_json["fit"]
+    return CaseScore(case, detected, dict.fromkeys(detected, False), errors, false, fit["nominal"],  # type: ignore[arg-type]
+                     fit["augmented"], seconds, diagnosis_json["effects"], diagnosis_json.get("ambiguities", []))
+
+
+def run_realistic(case: RealisticCase, cache: Path | None = None, closed_loop: bool = False) -> tuple[CaseScore, dict]:
+    """Generate with the true rig, diagnose against the nominal config (``case.shape``), score."""
+    from furuta_rt.diagnose import Options, diagnose
+
+    rec = generate_realistic(case, cache)
+    t0 = time.perf_counter()
+    d = diagnose(rec, load_rig(case.shape), Options(closed_loop=closed_loop))
+    seconds = time.perf_counter() - t0
+    out = d.to_json()
+    return score_realistic(case, out, seconds), out
