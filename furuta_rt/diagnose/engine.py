@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose import gate, peaks, stickslip, verify
+from furuta_rt.diagnose import gate, peaks, stickslip, verdict, verify
 from furuta_rt.diagnose.decay import DecayFit, DecayResult, free_decay, is_free_decay
 from furuta_rt.diagnose.fitting import Stats, fit, paired_t
 from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, STILL_TICKS, Context
@@ -123,6 +123,8 @@ class Diagnosis:
     stick: stickslip.WindowStage | None = field(default=None, repr=False)  # the stick–slip windows, when there are sticks
     peak: stickslip.WindowStage | None = field(default=None, repr=False)  # the command-peak windows, when they ran
     not_predictive: list[dict] = field(default_factory=list)  # effects the prediction gate moved out (gate.run)
+    verdicts: dict[str, verdict.EquationVerdict] = field(default_factory=dict, repr=False)  # per equation
+    summary: str = ""  # one line: the verdicts (furuta_rt.diagnose.verdict)
 
     @property
     def names(self) -> list[str]:
@@ -137,6 +139,7 @@ class Diagnosis:
 
     def _json(self) -> dict:
         return {
+            "summary": self.summary,
             "effects": [e.as_json() for e in self.effects],
             "fit": {k: self.fit[k] for k in FIT_KEYS},
             "not_predictive": self.not_predictive,
@@ -157,6 +160,7 @@ class Diagnosis:
                     "rows": r.rows, "nominal_rms": r.nominal.fit.cv_rms, "augmented_rms": r.selected.fit.cv_rms,
                     "cv_gain": r.gain, "relative_residual": r.location.relative_rms,
                     "correlations": r.location.correlations, "regions": r.location.regions,
+                    **(self.verdicts[eq].as_json() if eq in self.verdicts else {}),
                 }
                 for eq, r in self.equations.items()
             },
@@ -416,11 +420,13 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     prediction: dict = {}
     fit_summary = _prediction_metric(ctx, gated, found, prediction)
     closed = _closed_loop(rec, rig, found, opts, notes) if opts.closed_loop else None
+    verdicts = verdict.assess(ctx, ems, res, opts.seed)
     return Diagnosis(
         effects=found, fit=fit_summary, located=located, ambiguities=ambiguities, lookalikes=lookalikes,
         equations=res, closed_loop=closed, notes=notes, seconds=time.perf_counter() - t0, rig=rig.name, context=ctx,
         models=ems, prediction=prediction, decay=decay.as_json() if decay is not None else None, decay_result=decay,
-        stick=stick, peak=peak, not_predictive=gated.not_predictive,
+        stick=stick, peak=peak, not_predictive=gated.not_predictive, verdicts=verdicts,
+        summary=verdict.summary(verdicts),
     )
 
 

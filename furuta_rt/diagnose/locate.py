@@ -3,7 +3,7 @@
 Works on the inverse-dynamics residuals of the nominal model (furuta_rt.diagnose.library), so it is the
 same for an unstable plant under feedback and for open-loop data: each equation's residual is compared
 with the torque scale of that equation, correlated with the signals that name physics (sgn φ̇, φ̇, φ,
-u, u̇ — the command torque and its rate, θ, θ̇, sgn θ̇), split by operating region (arm reversals / low
+u, u̇ — the command torque and its rate, θ, θ̇, θ̈, φ̈, φ̇², sin θ cos θ φ̇², sgn θ̇), split by operating region (arm reversals / low
 |φ̇|, large |u|), and its largest stretches are listed in time.
 """
 
@@ -54,25 +54,29 @@ def features(ctx: Context, equation: str) -> dict[str, np.ndarray]:
     return {
         "sgn(φ̇)": np.sign(f.phi_dot), "φ̇": s.phi_dot, "φ": s.phi, "u": command,
         "u̇": np.gradient(command, ctx.prep.dt), "φ̈": s.phi_ddot, "θ": s.theta, "θ̇": s.theta_dot,
+        "θ̈": s.theta_ddot, "φ̇²": s.phi_dot**2, "sin θ cos θ φ̇²": np.sin(s.theta) * np.cos(s.theta) * s.phi_dot**2,
         "sgn(θ̇)": np.sign(f.theta_dot), "1": np.ones_like(s.theta),
     }
+
+
+def torque_scale(ctx: Context, equation: str, rows: np.ndarray) -> float:
+    """The equation's torque scale (rms on ``rows``): the command torque (arm), the gravity torque ε sin θ (pendulum)."""
+    if equation == ARM:
+        scale = float(np.sqrt(np.mean(ctx.command_torque(ctx.base_path)[rows] ** 2)))
+    else:
+        scale = float(np.sqrt(np.mean((ctx.plant.p.epsilon * np.sin(ctx.states(equation).theta))[rows] ** 2)))
+    return scale or 1.0
 
 
 def locate(ctx: Context, equation: str, y: np.ndarray, rows: np.ndarray) -> Location:
     """Describe the nominal residual ``y`` of ``equation`` on ``rows``."""
     if rows.sum() < 50:
         return Location(equation, float("nan"), {}, {}, [], text="too few usable samples")
-    s = ctx.states(equation)
     f = ctx.fine
     r = y[rows]
     feats = features(ctx, equation)
     command = feats["u"]
-    # the equation's torque scale: the command torque (arm), the gravity torque (pendulum), rms
-    if equation == ARM:
-        scale = float(np.sqrt(np.mean(command[rows] ** 2)))
-    else:
-        scale = float(np.sqrt(np.mean((ctx.plant.p.epsilon * np.sin(s.theta))[rows] ** 2)))
-    scale = scale or 1.0
+    scale = torque_scale(ctx, equation, rows)
     corr = {k: (_corr(r, v[rows]) if k != "1" else float(np.mean(r) / (np.sqrt(np.mean(r**2)) or 1.0))) for k, v in feats.items()}
     rms = float(np.sqrt(np.mean(r**2)))
     regions = {}
@@ -100,15 +104,17 @@ def locate(ctx: Context, equation: str, y: np.ndarray, rows: np.ndarray) -> Loca
     return Location(equation, rms / scale, corr, regions, times[:5])
 
 
-def describe(loc: Location, selected: list[str]) -> str:
-    """One sentence for one equation."""
+def describe(loc: Location, selected: list[str], verdict: str | None = None) -> str:
+    """One sentence for one equation. It says "consistent" only when the verdict (furuta_rt.diagnose.verdict) is:
+    no effect selected is not an all-clear."""
     eq = "arm equation" if loc.equation == ARM else "pendulum equation"
     if loc.text:
         return f"{eq}: {loc.text}"
-    if not selected:
+    if not selected and verdict == "consistent":
         return f"{eq}: consistent with the nominal model (residual {100 * loc.relative_rms:.1f} % of its torque scale)"
     top = sorted(((k, v) for k, v in loc.correlations.items() if k != "1"), key=lambda kv: -abs(kv[1]))[:2]
-    parts = [f"{eq}: residual {100 * loc.relative_rms:.1f} % of its torque scale"]
+    none = "" if selected else "no library effect selected; "
+    parts = [f"{eq}: {none}residual {100 * loc.relative_rms:.1f} % of its torque scale"]
     bias = loc.correlations.get("1", 0.0)
     if abs(bias) > 0.5:
         parts.append(f"a constant bias ({100 * abs(bias):.0f} % of its rms)")

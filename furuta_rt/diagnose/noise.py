@@ -1,0 +1,98 @@
+"""The noise floor of an inverse-dynamics residual: what the sensors alone put into it.
+
+The residual of eq. 4 is computed from states reconstructed from the measurements (encoder counts of φ, the
+θ channel through its ADC — and through the inverse Bessel path when the rig has one — every signal seen
+through the equation's Gaussian kernel, furuta_rt.diagnose.signals). Even with the right model it is not
+zero: the encoder's and the ADC's quantisation and the ADC noise, differentiated twice through the kernel,
+reach it through the accelerations (α θ̈, γ cos θ φ̈, M22 φ̈ …).
+
+Estimated by Monte Carlo on the recording itself: the measured signals are smoothed (the fine kernel), then
+re-measured at the rig's sensor settings (RigConfig.sensors: encoder counts per revolution, θ ADC resolution
+and noise, θ̇ ADC resolution and noise; a random sub-count phase per draw), and each re-measured copy goes
+through the same kernel, the same Bessel reconstruction and FurutaPlant.inverse_dynamics. The difference of
+the residual between a re-measured copy and the smoothed one is one draw of the sensor part of the residual,
+on the recording's own motion (where the arm is slow the encoder's error is a ramp, where it is fast it is
+white — both as in the recording).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from furuta_rt.diagnose.library import ARM, Context
+from furuta_rt.diagnose.signals import GaussianFilter, Prepared, States
+
+DRAWS = 4  # Monte Carlo draws of the sensor noise
+CLEAN_SIGMA = 0.02  # s, kernel of the smoothed ("noise-free") θ channel that is re-measured
+
+
+def _quantise(x: np.ndarray, step: float, phase: float) -> np.ndarray:
+    return step * np.round(x / step + phase) - step * phase
+
+
+def remeasured(prep: Prepared, ctx: Context, rng: np.random.Generator, clean: Prepared) -> Prepared:
+    """A copy of ``clean`` measured again by the rig's sensors (RigConfig.sensors)."""
+    s = ctx.rig.sensors
+    phi = _quantise(clean.phi, prep.phi_lsb, rng.uniform(-0.5, 0.5))
+    theta = _quantise(clean.theta_f + s.theta_noise * rng.standard_normal(prep.n), s.theta_rad_per_count,
+                      rng.uniform(-0.5, 0.5))
+    theta_dot = None
+    if clean.theta_dot_f is not None:
+        theta_dot = _quantise(clean.theta_dot_f + s.theta_dot_noise * rng.standard_normal(prep.n),
+                              s.theta_dot_rad_s_per_count, rng.uniform(-0.5, 0.5))
+    return replace(prep, theta_f=theta, theta_dot_f=theta_dot, phi=phi)
+
+
+def through_edges(t: np.ndarray, x: np.ndarray, step: float) -> np.ndarray:
+    """A quantised signal's continuous estimate: where the count changes, the signal crossed the level between the
+    two counts (half-way between the samples), so the estimate passes through those crossings and is linear between
+    them. Unlike any smoothing, it keeps the crossing times, hence the error structure of slow motion (a ramp and a
+    step per count) in the re-quantised copies."""
+    c = np.round(x / step)
+    idx = np.flatnonzero(np.diff(c))
+    if len(idx) < 2:
+        return x.astype(float)
+    tt = 0.5 * (t[idx] + t[idx + 1])
+    return np.interp(t, tt, 0.5 * (c[idx] + c[idx + 1]) * step)
+
+
+def smoothed(prep: Prepared, ctx: Context, sigma: float = CLEAN_SIGMA) -> Prepared:
+    """A stand-in for the noise-free measurement: the encoder's φ through its count crossings; the θ channel through
+    a kernel of width ``sigma`` (its ADC noise dithers the quantisation) or, without noise (an encoder), through its
+    count crossings too."""
+    f = GaussianFilter.build(sigma, prep.dt)
+    s = ctx.rig.sensors
+    if s.theta_noise < 0.5 * s.theta_rad_per_count:
+        theta = _edge_safe(f, through_edges(prep.t, prep.theta_f, s.theta_rad_per_count))
+    else:
+        theta = _edge_safe(f, prep.theta_f)
+    theta_dot = None if prep.theta_dot_f is None else _edge_safe(f, prep.theta_dot_f)
+    return replace(prep, theta_f=theta, theta_dot_f=theta_dot, phi=_edge_safe(f, through_edges(prep.t, prep.phi, prep.phi_lsb)))
+
+
+def _edge_safe(f: GaussianFilter, x: np.ndarray) -> np.ndarray:
+    y = f.apply(x, 0)
+    h = f.half
+    y[:h], y[-h:] = x[:h], x[-h:]
+    return y
+
+
+def _residual(ctx: Context, equation: str, s: States) -> np.ndarray:
+    """The state-dependent part of the equation's residual (the command is measured exactly): ID of eq. 4, plus the
+    back-EMF damping of a voltage-driven arm."""
+    tp, ta = ctx.plant.inverse_dynamics(s.theta - ctx.model.theta_offset, s.theta_dot, s.phi_dot, s.theta_ddot,
+                                        s.phi_ddot)
+    return ta + ctx.back_emf * s.phi_dot if equation == ARM else tp
+
+
+def draws(ctx: Context, equation: str, n_draws: int = DRAWS, seed: int = 0, clean_sigma: float = CLEAN_SIGMA) -> np.ndarray:
+    """(n_draws, n) draws of the sensor part of ``equation``'s residual on the recording's grid."""
+    prep = ctx.prep
+    sigma = ctx.states(equation).filt.sigma
+    clean = smoothed(prep, ctx, clean_sigma)
+    base = _residual(ctx, equation, clean.states(sigma))
+    rng = np.random.default_rng(seed)
+    return np.array([_residual(ctx, equation, remeasured(prep, ctx, rng, clean).states(sigma)) - base
+                     for _ in range(n_draws)])

@@ -1,0 +1,312 @@
+"""An honest verdict per equation of eq. 4, and where what stays unexplained sits.
+
+For each equation (arm, pendulum) the rms of the nominal residual, of the final (augmented) residual and of the
+sensor noise floor (furuta_rt.diagnose.noise) are compared, all relative to the equation's torque scale
+(furuta_rt.diagnose.locate.torque_scale). The test, on B contiguous time blocks of the equation's rows (which
+accounts for the residual's correlation in time: the blocks, not the samples, are the independent units):
+
+    d_b = ms(residual in block b) − K² · ms(noise floor draws in block b),   t = mean(d) / (sd(d)/√B)
+
+and the residual is *within the noise floor* unless t > T_CRIT (one-sided t test at 0.5 % with B − 1 degrees of
+freedom). K = FLOOR_ACCURACY is the accuracy of the floor estimate itself: on the simulator, where the true states
+are known, the Monte Carlo floor is within 25 % (rms) of the true sensor part of the residual on every null case.
+
+Verdicts: ``consistent`` (the nominal residual is within the floor), ``explained`` (it is not, the augmented one
+is), ``partly_explained`` (effects remove at least half of the excess over the floor, significantly, and a
+significant part remains), ``unexplained`` (otherwise), ``not_assessed`` (too few usable rows).
+
+For a remainder, where it sits (times, regions, the signals it follows, its frequency band) and what outside the
+library could produce it: the remaining residuals of both equations are regressed, jointly, on the sensitivity of
+FurutaPlant.inverse_dynamics to each plant parameter of the rig config, to a θ sensor scale and to the sign of
+each angle (possible causes for the person to check in the rig config; never effects), and a narrow spectral
+peak of the residual that the data does not have points to an unmodelled compliance or mode.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from furuta_rt.diagnose import noise
+from furuta_rt.diagnose.library import ARM, PEND, Context
+from furuta_rt.diagnose.locate import Location, locate, torque_scale
+from furuta_rt.model.parameters import LumpedParameters
+from furuta_rt.model.plant import FurutaPlant
+
+N_BLOCKS = 16
+T_CRIT = 2.95  # one-sided 0.5 % point of Student's t with 15 degrees of freedom
+FLOOR_ACCURACY = 1.3  # the floor estimate is within this factor (rms) of the true sensor part (see the docstring)
+MIN_ROWS = 200
+PARTLY = 0.5  # effects must remove at least this share of the excess over the floor for `partly_explained`
+CAUSE_T = 4.0  # a possible cause must be this many standard errors from zero ...
+CAUSE_REMOVES = 0.1  # ... and remove at least this share of the remaining (weighted) residual
+
+# plant parameters of each parametrisation that are not library effects (the arm inertia is one), with a name
+PLANT_CAUSES: dict[str, tuple[tuple[str, str], ...]] = {
+    "thesis": (("Jp", "pendulum inertia"), ("l", "pendulum length"), ("M", "tip mass"), ("m", "pendulum mass"),
+               ("r", "arm length")),
+    "general": (("J2", "pendulum inertia"), ("l2", "pendulum centre of mass"), ("m2", "pendulum mass"),
+                ("L1", "arm length")),
+    "lumped": (("alpha", "pendulum inertia α"), ("gamma", "coupling γ"), ("epsilon", "gravity torque ε")),
+}
+STEP = 1e-3  # relative step of the sensitivity columns
+
+
+@dataclass
+class EquationVerdict:
+    equation: str
+    verdict: str
+    residual_nominal: float
+    residual_augmented: float
+    noise_floor: float
+    t_nominal: float = float("nan")
+    t_augmented: float = float("nan")
+    reason: str = ""
+    effects: tuple[str, ...] = ()
+    unexplained: dict | None = None
+    remainder: Location | None = field(default=None, repr=False)
+
+    def as_json(self) -> dict:
+        out = {"verdict": self.verdict, "residual_nominal": self.residual_nominal,
+               "residual_augmented": self.residual_augmented, "noise_floor": self.noise_floor,
+               "test": {"t_nominal": self.t_nominal, "t_augmented": self.t_augmented, "t_crit": T_CRIT,
+                        "blocks": N_BLOCKS, "floor_accuracy": FLOOR_ACCURACY},
+               "unexplained": self.unexplained}
+        if self.reason:
+            out["reason"] = self.reason
+        return out
+
+
+def block_t(r: np.ndarray, floor: np.ndarray, n_blocks: int = N_BLOCKS) -> float:
+    """t of mean(ms_b(r) − K²·ms_b(floor)) over contiguous blocks (r: residual on the rows; floor: (draws, rows))."""
+    edges = np.linspace(0, len(r), n_blocks + 1).round().astype(int)
+    d = np.array([np.mean(r[a:b] ** 2) - FLOOR_ACCURACY**2 * np.mean(floor[:, a:b] ** 2)
+                  for a, b in itertools.pairwise(edges)])
+    sd = float(np.std(d, ddof=1))
+    if sd == 0:
+        return float(np.sign(d.sum()) * np.inf) if d.any() else 0.0
+    return float(np.mean(d) / (sd / np.sqrt(len(d))))
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(x**2))) if x.size else float("nan")
+
+
+def assess(ctx: Context, ems: dict, res: dict, seed: int = 0) -> dict[str, EquationVerdict]:
+    """The verdict of each equation from the final ``res`` (engine.EquationResult) and its models ``ems``."""
+    out: dict[str, EquationVerdict] = {}
+    remaining: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}  # eq → (residual, rows, floor ms)
+    for eq, r in res.items():
+        em = ems[eq]
+        rows = em.row_mask
+        effects = tuple(r.selected.spec.effects)
+        if rows.sum() < MIN_ROWS:
+            out[eq] = EquationVerdict(eq, "not_assessed", float("nan"), float("nan"), float("nan"),
+                                      reason=f"only {int(rows.sum())} usable samples (at least {MIN_ROWS} are needed)",
+                                      effects=effects)
+            continue
+        scale = torque_scale(ctx, eq, rows)
+        y_nom = em.target(em.spec0())
+        y_aug = em.residual(r.selected.spec, r.selected.fit.coef) if effects else y_nom
+        floor = noise.draws(ctx, eq, seed=seed)[:, rows]
+        t_nom, t_aug = block_t(y_nom[rows], floor), block_t(y_aug[rows], floor)
+        ms_floor = float(np.mean(floor**2))
+        v = EquationVerdict(eq, "", _rms(y_nom[rows]) / scale, _rms(y_aug[rows]) / scale, np.sqrt(ms_floor) / scale,
+                            t_nom, t_aug, effects=effects)
+        excess_nom = v.residual_nominal**2 - v.noise_floor**2
+        excess_aug = max(v.residual_augmented**2 - v.noise_floor**2, 0.0)
+        removed = 1.0 - excess_aug / excess_nom if excess_nom > 0 else 0.0
+        if t_nom <= T_CRIT:
+            v.verdict = "consistent"
+        elif effects and t_aug <= T_CRIT:
+            v.verdict = "explained"
+        elif effects and removed >= PARTLY:
+            v.verdict = "partly_explained"
+        else:
+            v.verdict = "unexplained"
+        if v.verdict in ("partly_explained", "unexplained"):
+            v.remainder = locate(ctx, eq, y_aug, rows)
+            v.unexplained = {"share": float(np.sqrt(excess_aug)), "removed_by_effects": removed if effects else 0.0,
+                             "where": where(v.remainder), "signature": signature(ctx, y_aug, rows, eq)}
+        remaining[eq] = (y_aug, rows, ms_floor)
+        out[eq] = v
+    causes = possible_causes(ctx, remaining) if any(v.unexplained for v in out.values()) else []
+    for v in out.values():
+        if v.unexplained is not None:
+            v.unexplained["possible_causes"] = [c for c in causes if c["removes"].get(v.equation, 0.0) > 0]
+    return out
+
+
+# ------------------------------------------------------------------------------ where
+def where(loc: Location) -> list[str]:
+    """Sentences: the signals the remainder follows, the regions and the times where it is largest."""
+    out = []
+    top = sorted(((k, c) for k, c in loc.correlations.items() if k != "1"), key=lambda kv: -abs(kv[1]))[:3]
+    if top:
+        out.append("follows " + ", ".join(f"{k} (r = {c:+.2f})" for k, c in top))
+    bias = loc.correlations.get("1", 0.0)
+    if abs(bias) > 0.5:
+        out.append(f"a constant bias ({100 * abs(bias):.0f} % of its rms)")
+    hot = [f"{k} (×{v:.1f} rms)" for k, v in loc.regions.items() if v > 1.3]
+    if hot:
+        out.append("largest at " + ", ".join(hot))
+    if loc.times:
+        out.append("worst at t = " + ", ".join(f"{a:.1f}–{b:.1f} s" for a, b in loc.times[:3]))
+    return out
+
+
+def _psd(x: np.ndarray, dt: float, seg: int) -> tuple[np.ndarray, np.ndarray]:
+    """Welch periodogram (Hann, half overlap) of ``x``."""
+    seg = min(seg, len(x))
+    w = np.hanning(seg)
+    starts = range(0, len(x) - seg + 1, max(seg // 2, 1))
+    p = np.mean([np.abs(np.fft.rfft((x[s : s + seg] - x[s : s + seg].mean()) * w)) ** 2 for s in starts], axis=0)
+    return np.fft.rfftfreq(seg, dt), p
+
+
+def signature(ctx: Context, y: np.ndarray, rows: np.ndarray, eq: str) -> dict:
+    """The remainder's frequency band against the data's: its spectral peak, the band holding half its power, and
+    how narrow the peak is (peak power over the median of its neighbourhood)."""
+    dt = ctx.prep.dt
+    seg = int(2 ** np.floor(np.log2(max(64, min(len(y), round(8.0 / dt))))))
+    r = np.where(rows, y, 0.0)
+    f, p = _psd(r, dt, seg)
+    s = ctx.states(eq)
+    data = s.theta_ddot if eq == PEND else s.phi_ddot
+    _, pd = _psd(np.where(rows, data, 0.0), dt, seg)
+    band = (f > 0.05) & (f < 0.5 / (np.pi * s.filt.sigma) * 2)  # below the kernel's cut-off
+    if not band.any() or p[band].sum() == 0:
+        return {}
+    i = np.flatnonzero(band)[int(np.argmax(p[band]))]
+    c = np.cumsum(p[band]) / p[band].sum()
+    fb = f[band]
+    lo, hi = float(fb[np.searchsorted(c, 0.25)]), float(fb[min(np.searchsorted(c, 0.75), len(fb) - 1)])
+    near = p[max(0, i - 8) : i + 9]
+    narrow = float(p[i] / (np.median(near) or 1.0))
+    ratio = p[band] / np.maximum(pd[band] / pd[band].sum() * p[band].sum(), 1e-300)
+    return {"peak_hz": float(f[i]), "band_hz": [lo, hi], "peak_narrowness": narrow,
+            "data_peak_hz": float(f[band][int(np.argmax(pd[band]))]),
+            "largest_excess_over_data_hz": float(fb[int(np.argmax(ratio))])}
+
+
+# ------------------------------------------------------------------------------ possible causes
+def _id_pair(ctx: Context, plant: FurutaPlant, eq: str, theta_gain: float = 1.0, theta_sign: float = 1.0,
+             phi_sign: float = 1.0) -> np.ndarray:
+    s = ctx.states(eq)
+    g = theta_gain * theta_sign
+    tp, ta = plant.inverse_dynamics(g * (s.theta - ctx.model.theta_offset), g * s.theta_dot, phi_sign * s.phi_dot,
+                                    g * s.theta_ddot, phi_sign * s.phi_ddot)
+    return ta if eq == ARM else tp
+
+
+def cause_columns(ctx: Context, equations: list[str]) -> list[tuple[str, str, dict[str, np.ndarray]]]:
+    """(key, name, {eq: column}) per possible cause: ∂ID/∂(relative change) of each plant parameter of the config's
+    parametrisation, of a θ sensor scale, and ID with an angle's sign reversed minus ID (per unit)."""
+    out = []
+    plant = ctx.plant
+    base = {eq: _id_pair(ctx, plant, eq) for eq in equations}
+    cfg = ctx.rig.plant
+    p0 = cfg.lumped()
+    for key, name in PLANT_CAUSES.get(cfg.parametrisation, ()):
+        value = getattr(cfg, key, None)
+        if not value:
+            continue
+        try:
+            p1 = cfg.model_copy(update={key: value * (1 + STEP)}).lumped()
+        except ValueError:
+            continue
+        q = plant.p
+        moved = FurutaPlant(LumpedParameters(q.alpha + p1.alpha - p0.alpha, q.beta + p1.beta - p0.beta,
+                                             q.gamma + p1.gamma - p0.gamma, q.epsilon + p1.epsilon - p0.epsilon))
+        out.append((key, name, {eq: (_id_pair(ctx, moved, eq) - base[eq]) / STEP for eq in equations}))
+    out.append(("theta_scale", "θ sensor scale",
+                {eq: (_id_pair(ctx, plant, eq, theta_gain=1 + STEP) - base[eq]) / STEP for eq in equations}))
+    out.append(("theta_sign", "sign of θ", {eq: _id_pair(ctx, plant, eq, theta_sign=-1) - base[eq] for eq in equations}))
+    out.append(("phi_sign", "sign of φ", {eq: _id_pair(ctx, plant, eq, phi_sign=-1) - base[eq] for eq in equations}))
+    return out
+
+
+def possible_causes(ctx: Context, remaining: dict[str, tuple[np.ndarray, np.ndarray, float]]) -> list[dict]:
+    """Each cause's column fitted alone to the remaining residuals of both equations jointly (each equation weighted
+    by its noise floor), blocked-jackknife standard error over time blocks; significant ones, best first."""
+    eqs = list(remaining)
+    t = ctx.prep.t
+    edges = np.linspace(t[0], t[-1], N_BLOCKS + 1)
+    out = []
+    for key, name, cols in cause_columns(ctx, eqs):
+        sxy = np.zeros(N_BLOCKS)
+        sxx = np.zeros(N_BLOCKS)
+        syy = 0.0
+        for eq in eqs:
+            y, rows, ms_floor = remaining[eq]
+            w = 1.0 / max(ms_floor, 1e-300)
+            b = np.clip(np.searchsorted(edges, t[rows], side="right") - 1, 0, N_BLOCKS - 1)
+            x, yy = cols[eq][rows], y[rows]
+            sxy += w * np.bincount(b, x * yy, N_BLOCKS)
+            sxx += w * np.bincount(b, x * x, N_BLOCKS)
+            syy += w * float(yy @ yy)
+        if sxx.sum() <= 0:
+            continue
+        a = float(sxy.sum() / sxx.sum())
+        folds = np.array([(sxy.sum() - sxy[k]) / max(sxx.sum() - sxx[k], 1e-300) for k in range(N_BLOCKS)])
+        se = float(np.sqrt((N_BLOCKS - 1) / N_BLOCKS * np.sum((folds - folds.mean()) ** 2)))
+        removes_all = a * a * sxx.sum() / syy if syy > 0 else 0.0
+        if abs(a) < CAUSE_T * se or removes_all < CAUSE_REMOVES:
+            continue
+        removes = {}
+        for eq in eqs:
+            y, rows, _ = remaining[eq]
+            ms = float(np.mean(y[rows] ** 2))
+            removes[eq] = max(0.0, 1.0 - float(np.mean((y[rows] - a * cols[eq][rows]) ** 2)) / ms) if ms > 0 else 0.0
+        out.append({"cause": name, "key": key, "value": _cause_value(ctx, key, a, se), "coefficient": a, "se": se,
+                    "removes": removes, "removes_total": removes_all})
+    out.sort(key=lambda c: -c["removes_total"])
+    if key_signs := [c for c in out if c["key"] in ("theta_sign", "phi_sign") and abs(c["coefficient"] + 1) > 0.3]:
+        out = [c for c in out if c not in key_signs]  # a sign is reversed (coefficient −1) or it is not
+    return out[:4]
+
+
+def _cause_value(ctx: Context, key: str, a: float, se: float) -> str:
+    """The cause's size in words: y = ID_config − ID_true ≈ −c·∂ID/∂c for a relative change c of a parameter."""
+    if key in ("theta_sign", "phi_sign"):
+        angle = "θ" if key == "theta_sign" else "φ"
+        return f"{angle} appears reversed relative to the rig (coefficient {a:+.2f} ± {se:.2f}; −1: reversed)"
+    if key == "theta_scale":  # the θ read is s × the true θ: y ≈ (1 − 1/s)·∂ID/∂s
+        s = 1.0 / (1.0 - a) if a < 1 else float("inf")
+        return f"θ reads {s:.3f} × the true angle (± {se:.3f})"
+    c = -a
+    return f"{key} = {1 + c:.3f} × config (± {se:.3f})"
+
+
+# ------------------------------------------------------------------------------ the summary line
+def summary(verdicts: dict[str, EquationVerdict]) -> str:
+    """One line: each equation's verdict with its numbers; for a remainder, what it follows and the first cause."""
+    parts = []
+    for eq, v in verdicts.items():
+        name = f"{eq} equation"
+        if v.verdict == "not_assessed":
+            parts.append(f"{name} not assessed ({v.reason})")
+            continue
+        pct = lambda x: f"{100 * x:.1f} %"  # noqa: E731
+        if v.verdict == "consistent":
+            parts.append(f"{name} consistent with the nominal model (residual {pct(v.residual_nominal)}, noise floor "
+                         f"{pct(v.noise_floor)})")
+        elif v.verdict == "explained":
+            parts.append(f"{name} explained by {', '.join(v.effects)} (residual {pct(v.residual_nominal)} → "
+                         f"{pct(v.residual_augmented)}, noise floor {pct(v.noise_floor)})")
+        else:
+            u = v.unexplained or {}
+            by = f" after {', '.join(v.effects)}" if v.effects else ""
+            text = (f"{name} {v.verdict.replace('_', ' ')}: {pct(u.get('share', 0.0))} of its torque scale left{by} "
+                    f"(residual {pct(v.residual_nominal)} → {pct(v.residual_augmented)}, noise floor {pct(v.noise_floor)})")
+            if v.remainder is not None:
+                top = sorted(((k, c) for k, c in v.remainder.correlations.items() if k != "1"), key=lambda kv: -abs(kv[1]))
+                if top:
+                    text += f", follows {top[0][0]}"
+            causes = u.get("possible_causes") or []
+            if causes:
+                text += f" — {causes[0]['cause']}: {causes[0]['value']}?"
+            parts.append(text)
+    return "; ".join(parts)
