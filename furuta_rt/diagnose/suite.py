@@ -18,6 +18,7 @@ Scoring (``score``), honest about what counts:
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import pickle
@@ -29,6 +30,8 @@ import numpy as np
 
 from furuta_rt.config import RigConfig, load_rig
 from furuta_rt.model.effects import EFFECT_TYPES, effects_from_assignments
+from furuta_rt.model.rig import calibration_from_config
+from furuta_rt.model.sensors import Calibration
 from furuta_rt.recording import Recording
 from furuta_rt.sim.closed_loop import run_closed_loop
 
@@ -46,6 +49,7 @@ class Case:
     seed: int
     reference: str | None = None  # None | "square" | "sine"
     duration: float = 60.0
+    rig_change: tuple[tuple[str, float], ...] = ()  # the TRUE rig's departure from the config (see true_rig)
 
     @property
     def injected(self) -> dict[str, dict[str, float]]:
@@ -53,6 +57,8 @@ class Case:
 
     def key(self) -> str:
         text = repr((self.effects, self.seed, self.reference, self.duration, CACHE_VERSION))
+        if self.rig_change:
+            text += repr(self.rig_change)
         return hashlib.sha1(text.encode()).hexdigest()[:16]
 
 
@@ -80,8 +86,9 @@ def generate(case: Case, rig: RigConfig, cache: Path | None = None) -> Recording
             return pickle.load(fh)
     n = round(case.duration * rig.control.rate_hz)
     ref = reference_signal(case.reference, n, rig.control.rate_hz, case.seed)
-    rec = run_closed_loop(rig, case.duration, effects=effects_from_assignments(list(case.effects)), seed=case.seed,
-                          reference=ref)
+    true, host = true_rig(rig, case.rig_change)
+    rec = run_closed_loop(true, case.duration, effects=effects_from_assignments(list(case.effects)), seed=case.seed,
+                          reference=ref, host_calibration=host)
     if ref is not None:
         rec.extra["phi_ref"] = ref
     rec.meta["case"] = case.name
@@ -90,6 +97,28 @@ def generate(case: Case, rig: RigConfig, cache: Path | None = None) -> Recording
         with path.open("wb") as fh:
             pickle.dump(rec, fh)
     return rec
+
+
+def true_rig(rig: RigConfig, change: tuple[tuple[str, float], ...]) -> tuple[RigConfig, Calibration | None]:
+    """(the rig the recording is made on, the host's calibration if it differs from the DAQ's) for a case's
+    ``rig_change``: ("plant.<key>", factor) multiplies a plant parameter of the config; ("sensors.theta_scale",
+    factor) makes the host read θ (and θ̇) as factor × the true angle (the DAQ's counts converted with a θ scale off
+    by that factor: the controller sees the scaled θ)."""
+    plant: dict[str, float] = {}
+    host = None
+    for key, factor in change:
+        section, _, name = key.partition(".")
+        if section == "plant":
+            plant[name] = float(getattr(rig.plant, name)) * factor
+        elif key == "sensors.theta_scale":
+            cal = calibration_from_config(rig)
+            host = dataclasses.replace(cal, theta_rad_per_count=cal.theta_rad_per_count * factor,
+                                       theta_dot_rad_s_per_count=cal.theta_dot_rad_s_per_count * factor)
+        else:
+            raise ValueError(f"unknown rig change {key!r}")
+    if plant:
+        rig = rig.model_copy(update={"plant": rig.plant.model_copy(update=plant)})
+    return rig, host
 
 
 def _c(name: str, seed: int, ref: str | None, *effects: str) -> Case:
@@ -171,6 +200,41 @@ def lugre_cases() -> list[Case]:
         _c("arm_lugre", 64, "square", *lugre, "arm_lugre.Fc=0.06", "arm_lugre.Fs=0.1", "arm_lugre.vs=0.05"),
         _c("arm_lugre", 65, None, *lugre, "arm_lugre.Fc=0.04", "arm_lugre.Fs=0.1", "arm_lugre.vs=0.2"),
     ]
+
+
+def outside_cases() -> list[Case]:
+    """Recordings whose mismatch is outside the library (issue 13): made on a TRUE rig that differs from the config
+    (pendulum inertia ±20 %, pendulum length ±10 %, a 5 % θ sensor scale error in the loop), diagnosed against the
+    config. Right answer: the equation the change acts in is `partly_explained` or `unexplained`, no effect is
+    named, and the first possible cause is the change (``OUTSIDE_CAUSE``)."""
+    return [
+        Case("outside Jp +20%", (), 71, "sine", rig_change=(("plant.Jp", 1.2),)),
+        Case("outside Jp -20%", (), 72, "square", rig_change=(("plant.Jp", 0.8),)),
+        Case("outside l +10%", (), 73, "sine", rig_change=(("plant.l", 1.1),)),
+        Case("outside l -10%", (), 74, "square", rig_change=(("plant.l", 0.9),)),
+        Case("outside theta scale +5%", (), 75, "sine", rig_change=(("sensors.theta_scale", 1.05),)),
+        Case("outside Jp +20% (no reference)", (), 76, None, rig_change=(("plant.Jp", 1.2),)),
+    ]
+
+
+OUTSIDE_CAUSE = {"plant.Jp": "Jp", "plant.l": "l", "sensors.theta_scale": "theta_scale"}  # rig change → cause key
+
+
+def outside_score(case: Case, diagnosis_json: dict) -> dict:
+    """An outside-the-library case: verdicts right (no equation `explained` by effects or `consistent` where the
+    change acts — both when the change acts in both), false effects (any reported effect), the right cause first."""
+    eqs = diagnosis_json["equations"]
+    verdicts = {eq: e.get("verdict") for eq, e in eqs.items()}
+    right_verdict = any(v in ("partly_explained", "unexplained") for v in verdicts.values()) and not any(
+        v == "explained" for v in verdicts.values())
+    want = {OUTSIDE_CAUSE[k] for k, _ in case.rig_change if k in OUTSIDE_CAUSE}
+    firsts = {eq: ((e.get("unexplained") or {}).get("possible_causes") or [{}])[0].get("key") for eq, e in eqs.items()
+              if e.get("unexplained")}
+    return {"case": case.name, "seed": case.seed, "rig_change": [list(c) for c in case.rig_change],
+            "verdicts": verdicts, "verdict_right": right_verdict,
+            "false_effects": [e["name"] for e in diagnosis_json["effects"]],
+            "first_cause": firsts, "cause_right": bool(firsts) and all(k in want for k in firsts.values()),
+            "summary": diagnosis_json.get("summary", "")}
 
 
 def quick_cases() -> list[Case]:

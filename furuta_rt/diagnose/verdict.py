@@ -13,7 +13,9 @@ are known, the Monte Carlo floor is within 25 % (rms) of the true sensor part of
 
 Verdicts: ``consistent`` (the nominal residual is within the floor), ``explained`` (it is not, the augmented one
 is), ``partly_explained`` (effects remove at least half of the excess over the floor, significantly, and a
-significant part remains), ``unexplained`` (otherwise), ``not_assessed`` (too few usable rows).
+significant part remains), ``unexplained`` (otherwise), ``not_assessed`` (too few usable rows). A residual whose
+size is within the floor but which follows a possible cause's signature beyond chance (below) is not consistent
+(nor explained): that test is specific, so it sees mismatches smaller than the omnibus size test can.
 
 For a remainder, where it sits (times, regions, the signals it follows, its frequency band) and what outside the
 library could produce it: the remaining residuals of both equations are regressed, jointly, on the sensitivity of
@@ -51,6 +53,7 @@ PLANT_CAUSES: dict[str, tuple[tuple[str, str], ...]] = {
                 ("L1", "arm length")),
     "lumped": (("alpha", "pendulum inertia α"), ("gamma", "coupling γ"), ("epsilon", "gravity torque ε")),
 }
+LOOKALIKE_MARGIN = 0.05  # a cause removing within this share of the first one's is reported as its look-alike
 STEP = 1e-3  # relative step of the sensitivity columns
 
 
@@ -126,16 +129,27 @@ def assess(ctx: Context, ems: dict, res: dict, seed: int = 0) -> dict[str, Equat
             v.verdict = "partly_explained"
         else:
             v.verdict = "unexplained"
-        if v.verdict in ("partly_explained", "unexplained"):
-            v.remainder = locate(ctx, eq, y_aug, rows)
-            v.unexplained = {"share": float(np.sqrt(excess_aug)), "removed_by_effects": removed if effects else 0.0,
-                             "where": where(v.remainder), "signature": signature(ctx, y_aug, rows, eq)}
         remaining[eq] = (y_aug, rows, ms_floor)
         out[eq] = v
-    causes = possible_causes(ctx, remaining) if any(v.unexplained for v in out.values()) else []
-    for v in out.values():
-        if v.unexplained is not None:
-            v.unexplained["possible_causes"] = [c for c in causes if c["removes"].get(v.equation, 0.0) > 0]
+    causes = possible_causes(ctx, remaining) if remaining else []
+    for eq, v in out.items():
+        mine = [c for c in causes if c["removes"].get(eq, 0.0) >= CAUSE_REMOVES]
+        if mine and v.verdict in ("consistent", "explained"):
+            # a plant-parameter or sensor signature is in the residual beyond chance: more specific than the
+            # variance test, so the residual is not sensor noise alone even when its size is within the floor's
+            v.verdict = "unexplained" if v.verdict == "consistent" else "partly_explained"
+            v.reason = (f"its size is within the noise floor, but it follows the signature of {mine[0]['cause']} "
+                        f"(t = {abs(mine[0]['coefficient']) / mine[0]['se']:.0f}, removes "
+                        f"{100 * mine[0]['removes'][eq]:.0f} % of it)")
+        if v.verdict in ("partly_explained", "unexplained"):
+            y_aug, rows, _ = remaining[eq]
+            v.remainder = locate(ctx, eq, y_aug, rows)
+            excess = max(v.residual_augmented**2 - v.noise_floor**2, 0.0)
+            excess_nom = v.residual_nominal**2 - v.noise_floor**2
+            v.unexplained = {"share": float(np.sqrt(excess)),
+                             "removed_by_effects": 1.0 - excess / excess_nom if v.effects and excess_nom > 0 else 0.0,
+                             "where": where(v.remainder), "signature": signature(ctx, y_aug, rows, eq),
+                             "possible_causes": [c for c in causes if c["removes"].get(eq, 0.0) > 0]}
     return out
 
 
@@ -262,9 +276,11 @@ def possible_causes(ctx: Context, remaining: dict[str, tuple[np.ndarray, np.ndar
             removes[eq] = max(0.0, 1.0 - float(np.mean((y[rows] - a * cols[eq][rows]) ** 2)) / ms) if ms > 0 else 0.0
         out.append({"cause": name, "key": key, "value": _cause_value(ctx, key, a, se), "coefficient": a, "se": se,
                     "removes": removes, "removes_total": removes_all})
+    # a sign is reversed (coefficient −1) or it is not: a partial fit of a sign column is no cause
+    out = [c for c in out if c["key"] not in ("theta_sign", "phi_sign") or abs(c["coefficient"] + 1) <= 0.3]
     out.sort(key=lambda c: -c["removes_total"])
-    if key_signs := [c for c in out if c["key"] in ("theta_sign", "phi_sign") and abs(c["coefficient"] + 1) > 0.3]:
-        out = [c for c in out if c not in key_signs]  # a sign is reversed (coefficient −1) or it is not
+    for c in out:  # causes that fit (almost) as well as the first are look-alikes the data cannot tell apart
+        c["indistinguishable_from_first"] = c["removes_total"] >= out[0]["removes_total"] - LOOKALIKE_MARGIN
     return out[:4]
 
 
@@ -307,6 +323,8 @@ def summary(verdicts: dict[str, EquationVerdict]) -> str:
                     text += f", follows {top[0][0]}"
             causes = u.get("possible_causes") or []
             if causes:
-                text += f" — {causes[0]['cause']}: {causes[0]['value']}?"
+                alike = [c for c in causes[1:] if c.get("indistinguishable_from_first")]
+                text += f" — {causes[0]['cause']}: {causes[0]['value']}"
+                text += "".join(f" or {c['cause']}: {c['value']}" for c in alike[:1]) + "?"
             parts.append(text)
     return "; ".join(parts)

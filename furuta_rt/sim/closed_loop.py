@@ -13,6 +13,7 @@ from furuta_rt.config import CompMode, RigConfig
 from furuta_rt.control.controller import Controller
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
+from furuta_rt.model.sensors import Calibration
 from furuta_rt.recording import Recording
 from furuta_rt.sim.simulator import Simulator
 
@@ -28,9 +29,11 @@ def run_closed_loop(
     x0: tuple[float, float, float, float] = (0.05, 0.0, 0.0, 0.0),
     substep_hz: float = 10_000.0,
     reference: np.ndarray | None = None,
+    host_calibration: Calibration | None = None,
 ) -> Recording:
     """Simulate ``duration`` s of balancing. ``reference``: optional arm-angle reference per tick
-    (added to φ as u = L·(x − x_ref)), used to excite the loop."""
+    (added to φ as u = L·(x − x_ref)), used to excite the loop. ``host_calibration``: the counts → SI conversion the
+    host uses when it differs from the DAQ's (a sensor scale error; default: the rig's own)."""
     model = RigModel.from_config(rig, effects)
     sim = Simulator(model, rig.control.rate_hz, substep_hz, seed=seed, x0=x0)
     ctrl = Controller.from_rig(rig, mode=mode, gains=gains)
@@ -40,7 +43,7 @@ def run_closed_loop(
         "true_theta", "true_theta_dot", "true_phi", "true_phi_dot", "friction",
     )}
     for k in range(n):
-        m = sim.measure()
+        m = sim.measure(host_calibration)
         if reference is not None:
             m.phi -= reference[k]
         out = ctrl.update(m)

@@ -28,7 +28,7 @@ import numpy as np
 
 from furuta_rt.model.friction import Coulomb, CoulombStiction
 from furuta_rt.model.rig import RigModel
-from furuta_rt.model.sensors import Measurement
+from furuta_rt.model.sensors import Calibration, Measurement
 
 
 @dataclass(slots=True)
@@ -278,8 +278,9 @@ class Simulator:
         a, b, c, over = m.calibration.to_counts(th_f, thd_f, self.phi)
         return RawSample(a, b, c, over)
 
-    def measure(self) -> Measurement:
-        """``sample`` converted to SI with the calibration (what the controller sees)."""
+    def measure(self, calibration: Calibration | None = None) -> Measurement:
+        """``sample`` converted to SI with the calibration (what the controller sees); ``calibration``: the host's,
+        when it differs from the DAQ's (a calibration error), default the rig's own."""
         s = self.sample()
-        th, thd, ph = self.model.calibration.to_si(s.theta_adc, s.theta_dot_adc, s.phi_count)
+        th, thd, ph = (calibration or self.model.calibration).to_si(s.theta_adc, s.theta_dot_adc, s.phi_count)
         return Measurement(self.t, th, thd, ph)
