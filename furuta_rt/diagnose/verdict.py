@@ -275,12 +275,12 @@ def possible_causes(ctx: Context, remaining: dict[str, tuple[np.ndarray, np.ndar
             ms = float(np.mean(y[rows] ** 2))
             removes[eq] = max(0.0, 1.0 - float(np.mean((y[rows] - a * cols[eq][rows]) ** 2)) / ms) if ms > 0 else 0.0
         out.append({"cause": name, "key": key, "value": _cause_value(ctx, key, a, se), "coefficient": a, "se": se,
-                    "removes": removes, "removes_total": removes_all})
+                    "removes": removes, "removes_total": float(removes_all)})
     # a sign is reversed (coefficient −1) or it is not: a partial fit of a sign column is no cause
     out = [c for c in out if c["key"] not in ("theta_sign", "phi_sign") or abs(c["coefficient"] + 1) <= 0.3]
     out.sort(key=lambda c: -c["removes_total"])
     for c in out:  # causes that fit (almost) as well as the first are look-alikes the data cannot tell apart
-        c["indistinguishable_from_first"] = c["removes_total"] >= out[0]["removes_total"] - LOOKALIKE_MARGIN
+        c["indistinguishable_from_first"] = bool(c["removes_total"] >= out[0]["removes_total"] - LOOKALIKE_MARGIN)
     return out[:4]
 
 
@@ -291,9 +291,9 @@ def _cause_value(ctx: Context, key: str, a: float, se: float) -> str:
         return f"{angle} appears reversed relative to the rig (coefficient {a:+.2f} ± {se:.2f}; −1: reversed)"
     if key == "theta_scale":  # the θ read is s × the true θ: y ≈ (1 − 1/s)·∂ID/∂s
         s = 1.0 / (1.0 - a) if a < 1 else float("inf")
-        return f"θ reads {s:.3f} × the true angle (± {se:.3f})"
+        return f"θ reads {s:.3f} × the true angle (± {se:.2g})"
     c = -a
-    return f"{key} = {1 + c:.3f} × config (± {se:.3f})"
+    return f"{key} = {1 + c:.3f} × config (± {se:.2g})"
 
 
 # ------------------------------------------------------------------------------ the summary line
