@@ -421,6 +421,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     fit_summary = _prediction_metric(ctx, gated, found, prediction)
     closed = _closed_loop(rec, rig, found, opts, notes) if opts.closed_loop else None
     verdicts = verdict.assess(ctx, ems, res, opts.seed)
+    located = verdict.with_verdicts(located, res, verdicts)
     return Diagnosis(
         effects=found, fit=fit_summary, located=located, ambiguities=ambiguities, lookalikes=lookalikes,
         equations=res, closed_loop=closed, notes=notes, seconds=time.perf_counter() - t0, rig=rig.name, context=ctx,

@@ -33,7 +33,7 @@ import numpy as np
 
 from furuta_rt.diagnose import noise
 from furuta_rt.diagnose.library import ARM, PEND, Context
-from furuta_rt.diagnose.locate import Location, locate, torque_scale
+from furuta_rt.diagnose.locate import Location, describe, locate, torque_scale
 from furuta_rt.model.parameters import LumpedParameters
 from furuta_rt.model.plant import FurutaPlant
 
@@ -294,6 +294,16 @@ def _cause_value(ctx: Context, key: str, a: float, se: float) -> str:
         return f"θ reads {s:.3f} × the true angle (± {se:.2g})"
     c = -a
     return f"{key} = {1 + c:.3f} × config (± {se:.2g})"
+
+
+def with_verdicts(located: str, res: dict, verdicts: dict[str, EquationVerdict]) -> str:
+    """The ``located`` text with each equation's sentence restated knowing its verdict (only a `consistent` one says
+    so)."""
+    for eq, r in res.items():
+        if eq in verdicts:
+            effects = list(r.selected.spec.effects)
+            located = located.replace(describe(r.location, effects), describe(r.location, effects, verdicts[eq].verdict), 1)
+    return located
 
 
 # ------------------------------------------------------------------------------ the summary line
