@@ -12,6 +12,7 @@ from furuta_rt.diagnose import Options, diagnose
 from furuta_rt.diagnose.suite import reference_signal
 from furuta_rt.model.effects import Effects, effects_from_assignments
 from furuta_rt.model.rig import RigModel
+from furuta_rt.recording import Recording
 from furuta_rt.sim.closed_loop import run_closed_loop
 from furuta_rt.sim.simulator import Simulator
 
@@ -92,3 +93,49 @@ def test_a_command_acting_one_tick_sooner_is_measured_as_the_latency_alone(thesi
     assert set(found) == {"command_latency"}, found
     assert abs(found["command_latency"]["delay"] - 0.0) < 0.5 * h
     assert d.fit["augmented"] < d.fit["nominal"]
+
+
+def _dc_rig():
+    """The macstepien rig with a back-EMF constant equal to its torque constant (SI: Ke = Kt)."""
+    rig = load_rig("macstepien")
+    return rig.model_copy(update={"actuator": rig.actuator.model_copy(update={"Ke": rig.actuator.Kt})})
+
+
+def _open_loop(rig, effects: list[str], volts: np.ndarray) -> Recording:
+    """Open-loop voltage steps with the pendulum hanging; θ read by an 8192-count encoder (the rig's ADC model ends at
+    ±π), the command of tick k acting from tick k+1 (the rig's command_delay_ticks = 1)."""
+    model = RigModel.from_config(rig, effects_from_assignments(effects))
+    sim = Simulator(model, rig.control.rate_hz, 5000.0, x0=(math.pi, 0.0, 0.0, 0.0))
+    lsb = 2 * math.pi / 8192
+    cols = np.empty((len(volts), 3))
+    for k, v in enumerate(volts):
+        cols[k] = (sim.t, round(sim.theta / lsb) * lsb, sim.measure().phi)
+        sim.advance()
+        sim.set_command(float(v))
+    return Recording(t=cols[:, 0], theta=cols[:, 1], phi=cols[:, 2], u=np.asarray(volts, float))
+
+
+def _steps(seconds: float, rate: float, amp: float, seed: int = 0) -> np.ndarray:
+    """Voltage steps of 1 s at ±amp, ±amp/2."""
+    n = round(seconds * rate)
+    levels = amp * np.random.default_rng(seed).choice([-1.0, -0.5, 0.5, 1.0], size=round(seconds) + 1)
+    return levels[(np.arange(n) / rate).astype(int)]
+
+
+def test_torque_per_volt_seven_times_the_datasheet_is_found_as_gain_and_damping_together() -> None:
+    """A DC-motor rig whose torque per volt (and so its back-EMF damping) is 7× the config's: the arm residual is then
+    6/7 of the arm's inertial torque, which neither an input gain nor a viscous term fits alone (and an inertia of 1/7
+    is outside any plausible range); the pair search finds both, and the data pins the time constant."""
+    rig = _dc_rig()
+    a = rig.actuator
+    d = a.Kt * a.Ke / a.R
+    rec = _open_loop(rig, ["input_gain.gain=7", f"arm_viscous.Fv={6 * d}"], _steps(20.0, 500.0, 0.3))
+    res = diagnose(rec, rig, FAST)
+    found = {e.name: e.params for e in res.effects}
+    assert set(found) == {"input_gain", "arm_viscous"}, found
+    assert found["input_gain"]["gain"] == pytest.approx(7.0, rel=0.05)
+    assert found["arm_viscous"]["Fv"] == pytest.approx(6 * d, rel=0.05)
+    trace = res.equations["arm"].trace
+    assert not any(r["accepted"] for r in trace if r["step"] == 0 and "pair" not in r)  # no single one pays
+    assert any(r["accepted"] and set(r["pair"]) == {"input_gain", "arm_viscous"} for r in trace if "pair" in r)
+    assert res.fit["augmented"] < 0.2 * res.fit["nominal"]

@@ -200,6 +200,14 @@ class EquationModel:
         raise KeyError(kind)
 
     @staticmethod
+    def nonlinear_value(spec: Spec, name: str) -> float | None:
+        """The value of ``name``'s nonlinear parameter in ``spec`` (None for a linear effect)."""
+        kind = CANDIDATES[name].nonlinear
+        if kind is None:
+            return None
+        return {"inertia": spec.d_inertia, "vs": spec.vs}.get(kind, getattr(spec.path, path_field(kind), None))
+
+    @staticmethod
     def can_add(spec: Spec, name: str) -> bool:
         """Whether ``name`` may join ``spec``: not in it yet, what it requires is, nothing it excludes is."""
         cand = CANDIDATES[name]
@@ -258,16 +266,21 @@ class EquationModel:
                     and self.admissible(ev, name, gain)
                 )
                 trace.append({"step": len(current.spec.effects), "candidate": name, "cv_gain": gain,
-                              "t": ev.t_stat.get(name, 0.0), "params": ev.params[name], "accepted": False, "ok": ok})
+                              "t": ev.t_stat.get(name, 0.0), "params": ev.params[name], "accepted": False, "ok": ok,
+                              "value": self.nonlinear_value(ev.spec, name)})
                 if ok and (best is None or gain > best[0]):
                     best = (gain, ev, name)
             if best is None:
-                break
+                pair = self.best_pair(current, names, trace)
+                if pair is None:
+                    break
+                current = pair
+                continue
             current = best[1]
             for row in trace:
                 if row["candidate"] == best[2] and row["step"] == len(current.spec.effects) - 1:
                     row["accepted"] = True
-        # backward pass: every kept effect must still pay for itself
+        # backward pass: every kept effect must still pay for itself (a pair's members given each other)
         changed = True
         while changed and len(current.spec.effects) > 1:
             changed = False
@@ -278,3 +291,53 @@ class EquationModel:
                     changed = True
                     break
         return nominal, current, trace
+
+    def best_pair(self, current: Evaluation, names: list[str], trace: list[dict]) -> Evaluation | None:
+        """Two effects that pay only together (when no single one is accepted): every admissible pair is screened with
+        the nonlinear parameters at their single-candidate optima (one least-squares fit each), the best ones fitted
+        with those parameters re-profiled given the other member; accepted by the rules of a single step applied to
+        the pair (held-out gain ≥ 2·min_gain beyond the BIC penalty of both) and to each member given the other
+        (significant, admissible, and its removal costs ≥ min_gain: the backward check)."""
+        step = len(current.spec.effects)
+        singles = {r["candidate"]: r for r in trace if r["step"] == step}
+        pool = [n for n in names if self.can_add(current.spec, n) and n in singles]
+        screened: list[tuple[float, str, str]] = []
+        for i, a in enumerate(pool):
+            for b in pool[i + 1 :]:
+                spec = current.spec
+                for n in (a, b):
+                    spec = spec.with_effect(n) if self.can_add(spec, n) else None  # type: ignore[union-attr]
+                    if spec is None:
+                        break
+                    kind = CANDIDATES[n].nonlinear
+                    if kind is not None:
+                        spec = spec.with_value(kind, singles[n]["value"])
+                if spec is None:
+                    continue
+                cv = fit(self.stats(spec)[0]).cv_sse
+                screened.append(((current.cv - cv) / current.cv, a, b))
+        screened.sort(reverse=True)
+        for gain0, a, b in screened[:PAIRS_REFINED]:
+            if gain0 < 2 * self.th.min_gain:
+                break
+            ev = self.evaluate_with(current.spec, a)
+            ev = self.evaluate_with(ev.spec, b)
+            if CANDIDATES[a].nonlinear is not None:  # a re-profiled given b (one pass of coordinate descent)
+                redo = self.evaluate_with(ev.spec.without(a), a)
+                ev = Evaluation(redo.spec, redo.fit, redo.params, {**ev.t_stat, **redo.t_stat}, {**ev.se, **redo.se})
+            gain = (current.cv - ev.cv) / current.cv
+            k = max(2, ev.fit.coef.size - current.fit.coef.size)
+            members_pay = all(
+                self.admissible(ev, n, gain) and (self.evaluate(ev.spec.without(n)).cv - ev.cv) >= self.th.min_gain * ev.cv
+                for n in (a, b)
+            )
+            ok = gain >= 2 * self.th.min_gain and current.cv - ev.cv > self.bic_penalty(k, ev.cv) and members_pay
+            trace.append({"step": step, "candidate": f"{a}+{b}", "pair": [a, b], "cv_gain": gain,
+                          "t": min(ev.t_stat.get(a, 0.0), ev.t_stat.get(b, 0.0)),
+                          "params": {a: ev.params[a], b: ev.params[b]}, "accepted": ok, "ok": ok})
+            if ok:
+                return ev
+        return None
+
+
+PAIRS_REFINED = 3  # the best-screened pairs fitted in full (nonlinear parameters re-profiled)
