@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose import gate, peaks, stickslip, verdict, verify
+from furuta_rt.diagnose import gate, identify, peaks, stickslip, verdict, verify
 from furuta_rt.diagnose.decay import DecayFit, DecayResult, free_decay, is_free_decay
 from furuta_rt.diagnose.fitting import Stats, fit, paired_t
 from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, STILL_TICKS, Context
@@ -125,6 +125,7 @@ class Diagnosis:
     not_predictive: list[dict] = field(default_factory=list)  # effects the prediction gate moved out (gate.run)
     verdicts: dict[str, verdict.EquationVerdict] = field(default_factory=dict, repr=False)  # per equation
     summary: str = ""  # one line: the verdicts (furuta_rt.diagnose.verdict)
+    identification: dict | None = None  # the arm's jointly calibrated parameters and identifiable combinations
 
     @property
     def names(self) -> list[str]:
@@ -146,6 +147,7 @@ class Diagnosis:
             "located": self.located,
             "ambiguities": self.ambiguities,
             "lookalikes": self.lookalikes,
+            "identification": self.identification,
             "evidence": [
                 {"name": e.name, "equation": e.equation, "source": e.source, "cv_gain": e.cv_gain, "t": e.t, "se": e.se}
                 for e in self.effects
@@ -428,6 +430,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
         models=ems, prediction=prediction, decay=decay.as_json() if decay is not None else None, decay_result=decay,
         stick=stick, peak=peak, not_predictive=gated.not_predictive, verdicts=verdicts,
         summary=verdict.summary(verdicts),
+        identification=identify.identification(ems[ARM], res[ARM].selected),
     )
 
 
