@@ -139,3 +139,17 @@ def test_torque_per_volt_seven_times_the_datasheet_is_found_as_gain_and_damping_
     assert not any(r["accepted"] for r in trace if r["step"] == 0 and "pair" not in r)  # no single one pays
     assert any(r["accepted"] and set(r["pair"]) == {"input_gain", "arm_viscous"} for r in trace if "pair" in r)
     assert res.fit["augmented"] < 0.2 * res.fit["nominal"]
+    ident = res.to_json()["identification"]
+    p, c = ident["parameters"], ident["combinations"]
+    assert set(p) == {"input_gain", "torque_per_volt", "arm_inertia", "arm_viscous", "arm_damping"}
+    assert p["torque_per_volt"]["value"] == pytest.approx(7 * a.Kt / a.R, rel=0.02)
+    assert p["arm_damping"]["value"] == pytest.approx(7 * d, rel=0.02)
+    # the inertia is the config's (nothing changed it), and the data pins it
+    assert p["arm_inertia"]["value"] == pytest.approx(rig.plant.arm_inertia, rel=0.05) and p["arm_inertia"]["pinned"]
+    # the combinations a DC motor's step responses pin: steady speed per volt 1/Ke, time constant M22(π)/(7d)
+    plant = RigModel.from_config(rig).plant
+    m22 = plant.inverse_dynamics(math.pi, 0.0, 0.0, 0.0, 1.0)[1] - plant.inverse_dynamics(math.pi, 0.0, 0.0, 0.0, 0.0)[1]
+    assert c["speed_per_volt"]["value"] == pytest.approx(1.0 / a.Ke, rel=0.02)
+    assert c["time_constant"]["value"] == pytest.approx(m22 / (7 * d), rel=0.05)
+    for combo in c.values():
+        assert 0 < combo["se"] < 0.02 * abs(combo["value"])

@@ -8,7 +8,8 @@ they are fitted jointly by least squares on top of the selected model, on the sa
 jackknife over the blocks gives each one's standard error and their correlations.
 
 A parameter is *pinned* when its relative standard error is below PINNED_REL_SE and it is not collinear with another
-(|correlation of the least-squares estimates| < COLLINEAR), unless its error is below a tenth of that anyway. Scaling g, J and D together changes only P's share of the
+(|correlation of the least-squares estimates| < COLLINEAR), unless its error is below a tenth of that anyway.
+Scaling g, J and D together changes only P's share of the
 residual, so when the pendulum's reaction is small the three are collinear and only their ratios are pinned: the
 combinations reported with their own jackknife errors — the arm's acceleration per command unit g·k_u/J_eff, its
 time constant J_eff/D and, for a DC motor, the steady speed per volt g·k_u/D (J_eff: M22 averaged over the rows).
