@@ -450,15 +450,22 @@ def arm_combinations(rig: RigConfig, gain: float, J: float, Fv: float) -> dict[s
     return {"speed_per_volt": gain * a.Kt / a.R / d, "time_constant": beta / d}  # type: ignore[operator]
 
 
-def _reported_arm(rig: RigConfig, reported: dict[str, dict[str, float]]) -> tuple[float, float, float]:
+def _reported_arm(rig: RigConfig, reported: dict[str, dict[str, float]],
+                  identification: dict | None = None) -> tuple[float, float, float]:
+    """(gain, J, Fv) of the arm as the diagnosis reports it: its jointly calibrated ``identification.parameters``
+    when it has them, else its effects (the config's values where none is reported)."""
     g = reported.get("input_gain", {}).get("gain", 1.0)
     J = reported.get("arm_inertia", {}).get("J", rig.plant.arm_inertia)
     Fv = reported.get("arm_viscous", {}).get("Fv", 0.0)
+    par = (identification or {}).get("parameters") or {}
+    if all(k in par for k in ("input_gain", "arm_inertia", "arm_viscous")):
+        g, J, Fv = (float(par[k]["value"]) for k in ("input_gain", "arm_inertia", "arm_viscous"))
     return g, J, Fv
 
 
 def score_realistic(case: RealisticCase, diagnosis_json: dict, seconds: float) -> CaseScore:
-    """Score like ``score``: the arm's gain, inertia and damping through the identifiable combinations (within 20 %),
+    """Score like ``score``: the arm's gain, inertia and damping (as calibrated in ``identification``, else as
+    reported effects) through the identifiable combinations of ``arm_combinations`` (within 20 %),
     every other injected effect by its main parameter (within 20 %), the latency within half a tick where it differs
     from the config; a false discovery is a reported effect not injected (a latency reported where there is none
     counts when it is more than half a tick off the config's)."""
@@ -469,7 +476,7 @@ def score_realistic(case: RealisticCase, diagnosis_json: dict, seconds: float) -
     errors: dict[str, float] = {}
     g, J, Fv = _reported_arm(rig, injected)
     true = arm_combinations(rig, g, J, Fv)
-    est = arm_combinations(rig, *_reported_arm(rig, reported))
+    est = arm_combinations(rig, *_reported_arm(rig, reported, diagnosis_json.get("identification")))
     for name, value in true.items():
         errors[name] = abs(est[name] - value) / abs(value)
         detected[name] = errors[name] <= TOLERANCE
