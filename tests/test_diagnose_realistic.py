@@ -95,9 +95,13 @@ def test_one_realistic_case_end_to_end(tmp_path) -> None:
     assert set(s.errors) >= {"speed_per_volt", "time_constant"} and "latency" not in s.detected
     assert s.detected["speed_per_volt"], s.errors
     assert s.augmented < s.nominal
-    # the same diagnosis with the gain halved is scored as a miss of the steady speed per volt
+    # the same diagnosis with the gain halved (in its effects and its calibration) is scored as a miss
     wrong = {**out, "effects": [e if e["name"] != "input_gain" else {"name": "input_gain", "params": {
         "gain": 0.5 * e["params"]["gain"]}} for e in out["effects"]]}
+    par = (out.get("identification") or {}).get("parameters")
+    if par and "input_gain" in par:
+        gain = {**par["input_gain"], "value": 0.5 * par["input_gain"]["value"]}
+        wrong["identification"] = {**out["identification"], "parameters": {**par, "input_gain": gain}}
     assert not suite.score_realistic(case, wrong, 0.0).detected["speed_per_volt"]
 
 
