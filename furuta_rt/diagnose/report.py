@@ -43,7 +43,7 @@ def fmt_params(params: dict[str, float], se: dict[str, float] | None = None) -> 
 
 def text(d: Diagnosis) -> list[str]:
     """The report as lines of plain text."""
-    lines = [f"rig {d.rig}; diagnosed in {d.seconds:.1f} s"]
+    lines = [d.summary, f"rig {d.rig}; diagnosed in {d.seconds:.1f} s"]
     if d.effects:
         lines.append("effects found (held-out error reduction, significance):")
         for e in d.effects:
@@ -52,7 +52,7 @@ def text(d: Diagnosis) -> list[str]:
                        f": −{100 * e.cv_gain:.1f} %, t = {e.t:.0f}" if e.source.endswith("windows") else ""))
             lines.append(f"  {e.name}: {fmt_params(e.params, e.se)}   [{how}]")
     else:
-        lines.append("no effect found: the nominal model explains the recording")
+        lines.append("no library effect found (whether the nominal model explains the recording: the verdicts above)")
     for a in d.ambiguities:
         alt = a["alternative"]
         lines.append(f"ambiguous: {a['effects'][0]} or {alt['name']} ({fmt_params(alt['params'])}): {a['reason']}; "

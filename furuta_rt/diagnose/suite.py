@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from furuta_rt.config import RigConfig, load_rig
+from furuta_rt.model.coupling import Coupling
 from furuta_rt.model.effects import EFFECT_TYPES, effects_from_assignments
 from furuta_rt.model.rig import calibration_from_config
 from furuta_rt.model.sensors import Calibration
@@ -86,9 +87,9 @@ def generate(case: Case, rig: RigConfig, cache: Path | None = None) -> Recording
             return pickle.load(fh)
     n = round(case.duration * rig.control.rate_hz)
     ref = reference_signal(case.reference, n, rig.control.rate_hz, case.seed)
-    true, host = true_rig(rig, case.rig_change)
+    true, host, coupling = true_rig(rig, case.rig_change)
     rec = run_closed_loop(true, case.duration, effects=effects_from_assignments(list(case.effects)), seed=case.seed,
-                          reference=ref, host_calibration=host)
+                          reference=ref, host_calibration=host, coupling=coupling)
     if ref is not None:
         rec.extra["phi_ref"] = ref
     rec.meta["case"] = case.name
@@ -99,12 +100,15 @@ def generate(case: Case, rig: RigConfig, cache: Path | None = None) -> Recording
     return rec
 
 
-def true_rig(rig: RigConfig, change: tuple[tuple[str, float], ...]) -> tuple[RigConfig, Calibration | None]:
-    """(the rig the recording is made on, the host's calibration if it differs from the DAQ's) for a case's
-    ``rig_change``: ("plant.<key>", factor) multiplies a plant parameter of the config; ("sensors.theta_scale",
-    factor) makes the host read θ (and θ̇) as factor × the true angle (the DAQ's counts converted with a θ scale off
-    by that factor: the controller sees the scaled θ)."""
+def true_rig(rig: RigConfig, change: tuple[tuple[str, float], ...]) -> tuple[RigConfig, Calibration | None,
+                                                                           Coupling | None]:
+    """(the rig the recording is made on, the host's calibration if it differs from the DAQ's, a compliant coupling)
+    for a case's ``rig_change``: ("plant.<key>", factor) multiplies a plant parameter of the config;
+    ("sensors.theta_scale", factor) makes the host read θ (and θ̇) as factor × the true angle (the DAQ's counts
+    converted with a θ scale off by that factor: the controller sees the scaled θ); ("coupling.<field>", value) sets
+    a field of a compliant rotor–arm coupling (furuta_rt.model.coupling)."""
     plant: dict[str, float] = {}
+    coupling: dict[str, float] = {}
     host = None
     for key, factor in change:
         section, _, name = key.partition(".")
@@ -114,11 +118,13 @@ def true_rig(rig: RigConfig, change: tuple[tuple[str, float], ...]) -> tuple[Rig
             cal = calibration_from_config(rig)
             host = dataclasses.replace(cal, theta_rad_per_count=cal.theta_rad_per_count * factor,
                                        theta_dot_rad_s_per_count=cal.theta_dot_rad_s_per_count * factor)
+        elif section == "coupling":
+            coupling[name] = factor
         else:
             raise ValueError(f"unknown rig change {key!r}")
     if plant:
         rig = rig.model_copy(update={"plant": rig.plant.model_copy(update=plant)})
-    return rig, host
+    return rig, host, Coupling(**coupling) if coupling else None
 
 
 def _c(name: str, seed: int, ref: str | None, *effects: str) -> Case:
@@ -228,12 +234,15 @@ def outside_score(case: Case, diagnosis_json: dict) -> dict:
     right_verdict = any(v in ("partly_explained", "unexplained") for v in verdicts.values()) and not any(
         v == "explained" for v in verdicts.values())
     want = {OUTSIDE_CAUSE[k] for k, _ in case.rig_change if k in OUTSIDE_CAUSE}
-    firsts = {eq: ((e.get("unexplained") or {}).get("possible_causes") or [{}])[0].get("key") for eq, e in eqs.items()
+    causes = {eq: (e.get("unexplained") or {}).get("possible_causes") or [] for eq, e in eqs.items()
               if e.get("unexplained")}
+    firsts = {eq: c[0]["key"] for eq, c in causes.items() if c}
+    alike = {eq: {x["key"] for x in c if x is c[0] or x.get("indistinguishable_from_first")} for eq, c in causes.items()}
     return {"case": case.name, "seed": case.seed, "rig_change": [list(c) for c in case.rig_change],
             "verdicts": verdicts, "verdict_right": right_verdict,
             "false_effects": [e["name"] for e in diagnosis_json["effects"]],
             "first_cause": firsts, "cause_right": bool(firsts) and all(k in want for k in firsts.values()),
+            "cause_among_lookalikes": bool(alike) and all(want & keys for keys in alike.values() if keys),
             "summary": diagnosis_json.get("summary", "")}
 
 
@@ -267,10 +276,23 @@ class CaseScore:
     seconds: float
     reported: list[dict] = field(default_factory=list)
     ambiguities: list[dict] = field(default_factory=list)
+    verdicts: dict[str, str] = field(default_factory=dict)  # equation → verdict (furuta_rt.diagnose.verdict)
 
     @property
     def improved(self) -> bool:
         return self.augmented < self.nominal
+
+    @property
+    def expected_verdicts(self) -> dict[str, str]:
+        """The right verdict per equation: `explained` where an injected effect acts, `consistent` elsewhere."""
+        from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND
+
+        acts = {CANDIDATES[n].equation if n in CANDIDATES else ARM for n in self.case.injected}
+        return {eq: "explained" if eq in acts else "consistent" for eq in (ARM, PEND)}
+
+    @property
+    def verdicts_right(self) -> dict[str, bool]:
+        return {eq: self.verdicts.get(eq) == v for eq, v in self.expected_verdicts.items() if eq in self.verdicts}
 
     def as_json(self) -> dict:
         return {
@@ -278,6 +300,7 @@ class CaseScore:
             "injected": self.case.injected, "reported": self.reported, "ambiguities": self.ambiguities,
             "detected": self.detected, "detected_lookalike": self.detected_lookalike, "errors": self.errors,
             "false": self.false, "nominal": self.nominal, "augmented": self.augmented, "seconds": self.seconds,
+            "verdicts": self.verdicts, "expected_verdicts": self.expected_verdicts,
         }
 
 
@@ -299,8 +322,9 @@ def score(case: Case, diagnosis_json: dict, seconds: float) -> CaseScore:
     covered = {a["effects"][0] for a in chosen} | {n for a in chosen for n in a.get("replaced", [])}
     false = [n for n in reported if n not in injected and n not in covered]
     fit = diagnosis_json["fit"]
+    verdicts = {eq: e["verdict"] for eq, e in diagnosis_json["equations"].items() if "verdict" in e}
     return CaseScore(case, detected, via_alt, errors, false, fit["nominal"], fit["augmented"], seconds,
-                     diagnosis_json["effects"], diagnosis_json["ambiguities"])
+                     diagnosis_json["effects"], diagnosis_json["ambiguities"], verdicts)
 
 
 def run_case(case: Case, rig: RigConfig, cache: Path | None = None, closed_loop: bool = False) -> tuple[CaseScore, dict]:
@@ -334,6 +358,10 @@ def totals(scores: list[CaseScore]) -> dict:
         "max_param_error": float(np.max(errs)) if errs else float("nan"),
         "median_seconds": float(np.median([s.seconds for s in scores])) if scores else float("nan"),
         "max_seconds": float(np.max([s.seconds for s in scores])) if scores else float("nan"),
+        "verdicts_right": sum(sum(s.verdicts_right.values()) for s in scores),
+        "verdicts": sum(len(s.verdicts_right) for s in scores),
+        "null_equations_consistent": sum(v == "consistent" for s in nulls for v in s.verdicts.values()),
+        "null_equations": sum(len(s.verdicts) for s in nulls),
     }
 
 

@@ -27,6 +27,7 @@ peak of the residual that the data does not have points to an unmodelled complia
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,6 +35,7 @@ import numpy as np
 from furuta_rt.diagnose import noise
 from furuta_rt.diagnose.library import ARM, PEND, Context
 from furuta_rt.diagnose.locate import Location, describe, locate, torque_scale
+from furuta_rt.diagnose.signals import States
 from furuta_rt.model.parameters import LumpedParameters
 from furuta_rt.model.plant import FurutaPlant
 
@@ -206,64 +208,96 @@ def signature(ctx: Context, y: np.ndarray, rows: np.ndarray, eq: str) -> dict:
 
 
 # ------------------------------------------------------------------------------ possible causes
-def _id_pair(ctx: Context, plant: FurutaPlant, eq: str, theta_gain: float = 1.0, theta_sign: float = 1.0,
+def _id_pair(ctx: Context, s: States, plant: FurutaPlant, eq: str, theta_gain: float = 1.0, theta_sign: float = 1.0,
              phi_sign: float = 1.0) -> np.ndarray:
-    s = ctx.states(eq)
     g = theta_gain * theta_sign
     tp, ta = plant.inverse_dynamics(g * (s.theta - ctx.model.theta_offset), g * s.theta_dot, phi_sign * s.phi_dot,
                                     g * s.theta_ddot, phi_sign * s.phi_ddot)
     return ta if eq == ARM else tp
 
 
-def cause_columns(ctx: Context, equations: list[str]) -> list[tuple[str, str, dict[str, np.ndarray]]]:
-    """(key, name, {eq: column}) per possible cause: ∂ID/∂(relative change) of each plant parameter of the config's
-    parametrisation, of a θ sensor scale, and ID with an angle's sign reversed minus ID (per unit)."""
-    out = []
+Columns = Callable[[float], dict[str, np.ndarray]]
+
+
+def cause_columns(ctx: Context, equations: list[str]) -> list[tuple[str, str, Columns]]:
+    """(key, name, columns) per possible cause; ``columns(a)`` gives per equation the column X with residual ≈ a·X.
+
+    A plant parameter p of the config's parametrisation (true value p·(1 − a)) and a θ sensor scale (θ read as
+    θ_true/(1 − a)) enter eq. 4 nonlinearly (α = J_p + M l², …): X(a) = (ID at the changed value − ID)/(−a), the secant
+    (the derivative at a → 0), so that the fit, iterated, is exact for a change of any size. A reversed sign of θ or φ
+    is the column ID(reversed) − ID, with coefficient −1 when reversed.
+
+    The columns are computed on the noise-reduced signals of the noise floor (furuta_rt.diagnose.noise.smoothed):
+    on the measured ones they would share the residual's own noise (α·δθ̈ is in both the residual and the inertia
+    column)."""
+    out: list[tuple[str, str, Columns]] = []
     plant = ctx.plant
-    base = {eq: _id_pair(ctx, plant, eq) for eq in equations}
+    clean = noise.smoothed(ctx.prep, ctx)
+    st = {eq: clean.states(ctx.states(eq).filt.sigma) for eq in equations}
+    base = {eq: _id_pair(ctx, st[eq], plant, eq) for eq in equations}
+
+    def secant(id_at: Callable[[float], dict[str, np.ndarray]]) -> Columns:
+        def columns(a: float) -> dict[str, np.ndarray]:
+            a = a if abs(a) >= STEP else STEP
+            moved = id_at(1.0 - a)
+            return {eq: (moved[eq] - base[eq]) / -a for eq in equations}
+        return columns
+
     cfg = ctx.rig.plant
     p0 = cfg.lumped()
     for key, name in PLANT_CAUSES.get(cfg.parametrisation, ()):
         value = getattr(cfg, key, None)
         if not value:
             continue
+
+        def plant_at(f: float, key: str = key, value: float = value) -> dict[str, np.ndarray]:
+            p1, q = cfg.model_copy(update={key: value * f}).lumped(), plant.p
+            moved = FurutaPlant(LumpedParameters(q.alpha + p1.alpha - p0.alpha, q.beta + p1.beta - p0.beta,
+                                                 q.gamma + p1.gamma - p0.gamma, q.epsilon + p1.epsilon - p0.epsilon))
+            return {eq: _id_pair(ctx, st[eq], moved, eq) for eq in equations}
+
         try:
-            p1 = cfg.model_copy(update={key: value * (1 + STEP)}).lumped()
+            plant_at(1.0 + STEP)
         except ValueError:
             continue
-        q = plant.p
-        moved = FurutaPlant(LumpedParameters(q.alpha + p1.alpha - p0.alpha, q.beta + p1.beta - p0.beta,
-                                             q.gamma + p1.gamma - p0.gamma, q.epsilon + p1.epsilon - p0.epsilon))
-        out.append((key, name, {eq: (_id_pair(ctx, moved, eq) - base[eq]) / STEP for eq in equations}))
+        out.append((key, name, secant(plant_at)))
     out.append(("theta_scale", "θ sensor scale",
-                {eq: (_id_pair(ctx, plant, eq, theta_gain=1 + STEP) - base[eq]) / STEP for eq in equations}))
-    out.append(("theta_sign", "sign of θ", {eq: _id_pair(ctx, plant, eq, theta_sign=-1) - base[eq] for eq in equations}))
-    out.append(("phi_sign", "sign of φ", {eq: _id_pair(ctx, plant, eq, phi_sign=-1) - base[eq] for eq in equations}))
+                secant(lambda f: {eq: _id_pair(ctx, st[eq], plant, eq, theta_gain=f) for eq in equations})))
+    for key, name, kw in (("theta_sign", "sign of θ", {"theta_sign": -1.0}), ("phi_sign", "sign of φ", {"phi_sign": -1.0})):
+        flip = {eq: _id_pair(ctx, st[eq], plant, eq, **kw) - base[eq] for eq in equations}
+        out.append((key, name, lambda a, flip=flip: flip))
     return out
 
 
 def possible_causes(ctx: Context, remaining: dict[str, tuple[np.ndarray, np.ndarray, float]]) -> list[dict]:
-    """Each cause's column fitted alone to the remaining residuals of both equations jointly (each equation weighted
-    by its noise floor), blocked-jackknife standard error over time blocks; significant ones, best first."""
+    """Each cause fitted alone to the remaining residuals of both equations jointly (each equation weighted by its
+    noise floor; the secant columns refitted at the estimate, twice), with a blocked-jackknife standard error over
+    time blocks; the significant ones, best first."""
     eqs = list(remaining)
     t = ctx.prep.t
     edges = np.linspace(t[0], t[-1], N_BLOCKS + 1)
+    blocks = {eq: np.clip(np.searchsorted(edges, t[rows], side="right") - 1, 0, N_BLOCKS - 1)
+              for eq, (_, rows, _) in remaining.items()}
     out = []
-    for key, name, cols in cause_columns(ctx, eqs):
-        sxy = np.zeros(N_BLOCKS)
-        sxx = np.zeros(N_BLOCKS)
-        syy = 0.0
-        for eq in eqs:
-            y, rows, ms_floor = remaining[eq]
-            w = 1.0 / max(ms_floor, 1e-300)
-            b = np.clip(np.searchsorted(edges, t[rows], side="right") - 1, 0, N_BLOCKS - 1)
-            x, yy = cols[eq][rows], y[rows]
-            sxy += w * np.bincount(b, x * yy, N_BLOCKS)
-            sxx += w * np.bincount(b, x * x, N_BLOCKS)
-            syy += w * float(yy @ yy)
-        if sxx.sum() <= 0:
+    for key, name, columns in cause_columns(ctx, eqs):
+        a = 0.0
+        for _ in range(3):
+            cols = columns(a)
+            sxy, sxx, syy = np.zeros(N_BLOCKS), np.zeros(N_BLOCKS), 0.0
+            for eq in eqs:
+                y, rows, ms_floor = remaining[eq]
+                w = 1.0 / max(ms_floor, 1e-300)
+                x, yy = cols[eq][rows], y[rows]
+                sxy += w * np.bincount(blocks[eq], x * yy, N_BLOCKS)
+                sxx += w * np.bincount(blocks[eq], x * x, N_BLOCKS)
+                syy += w * float(yy @ yy)
+            if sxx.sum() <= 0 or not np.isfinite(sxx.sum()):
+                break
+            a = float(sxy.sum() / sxx.sum())
+            if key.endswith("_sign") or not -0.9 < a < 0.9:
+                break
+        if sxx.sum() <= 0 or not np.isfinite(a):
             continue
-        a = float(sxy.sum() / sxx.sum())
         folds = np.array([(sxy.sum() - sxy[k]) / max(sxx.sum() - sxx[k], 1e-300) for k in range(N_BLOCKS)])
         se = float(np.sqrt((N_BLOCKS - 1) / N_BLOCKS * np.sum((folds - folds.mean()) ** 2)))
         removes_all = a * a * sxx.sum() / syy if syy > 0 else 0.0

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 from furuta_rt.config import RigConfig
 from furuta_rt.model.actuator import Actuator, DCMotor
+from furuta_rt.model.coupling import Coupling
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.friction import Coulomb, CoulombStiction, JointFriction, LuGre, Viscous
 from furuta_rt.model.plant import FurutaPlant
@@ -34,6 +35,7 @@ class RigModel:
     command_latency: float | None = None  # total s from the sample instant to the torque (None: the driver's lag)
     theta_noise: float = 0.0
     theta_dot_noise: float = 0.0
+    coupling: Coupling | None = None  # a compliant rotor–arm coupling (not eq. 4; simulated only when set)
 
     @classmethod
     def from_config(cls, rig: RigConfig, effects: Effects | None = None) -> RigModel:

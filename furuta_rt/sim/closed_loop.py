@@ -7,10 +7,13 @@ effect that many seconds after the sample instant instead.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from furuta_rt.config import CompMode, RigConfig
 from furuta_rt.control.controller import Controller
+from furuta_rt.model.coupling import Coupling
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 from furuta_rt.model.sensors import Calibration
@@ -30,11 +33,15 @@ def run_closed_loop(
     substep_hz: float = 10_000.0,
     reference: np.ndarray | None = None,
     host_calibration: Calibration | None = None,
+    coupling: Coupling | None = None,
 ) -> Recording:
     """Simulate ``duration`` s of balancing. ``reference``: optional arm-angle reference per tick
     (added to φ as u = L·(x − x_ref)), used to excite the loop. ``host_calibration``: the counts → SI conversion the
-    host uses when it differs from the DAQ's (a sensor scale error; default: the rig's own)."""
+    host uses when it differs from the DAQ's (a sensor scale error; default: the rig's own). ``coupling``: a compliant
+    rotor–arm coupling (furuta_rt.model.coupling; default none: eq. 4's rigid arm)."""
     model = RigModel.from_config(rig, effects)
+    if coupling is not None:
+        model = dataclasses.replace(model, coupling=coupling)
     sim = Simulator(model, rig.control.rate_hz, substep_hz, seed=seed, x0=x0)
     ctrl = Controller.from_rig(rig, mode=mode, gains=gains)
     n = round(duration * rig.control.rate_hz)

@@ -64,6 +64,8 @@ class Simulator:
         self.y = self.theta + model.theta_offset  # Bessel states start settled
         self.y_dot = 0.0
         self.z = 0.0  # LuGre bristle deflection
+        self._coupling = model.coupling
+        self.rotor, self.rotor_dot = self.phi, self.phi_dot  # the motor's rotor (with a compliant coupling only)
         self.stuck = False
         self.arm_friction_torque = 0.0
         self.command = 0.0
@@ -172,6 +174,10 @@ class Simulator:
             self._shaped_for = command
             self._shaped = self.model.actuator.torque_terms(command)
         tau0, damp = self._shaped
+        if self._coupling is not None:  # the motor drives its rotor; the arm gets the coupling's torque
+            self.rotor, self.rotor_dot, tau0 = self._coupling.advance(
+                self.rotor, self.rotor_dot, tau0 - damp * self.rotor_dot, self.phi, self.phi_dot, self.h)
+            damp = 0.0
         tau0 += self._bias  # arm_bias: a constant torque on the arm
         th, thd, ph, phd, y, yd = self.theta, self.theta_dot, self.phi, self.phi_dot, self.y, self.y_dot
 
