@@ -6,6 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
 from rich.console import Console
 
 from furuta_rt.config import SHIPPED_RIGS, RigConfig, load_rig
@@ -27,16 +28,23 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"rig TOML file or a shipped rig ({', '.join(SHIPPED_RIGS)})")
     p.add_argument("--mapping", metavar="NAME|FILE", default=None,
                    help="column mapping for another rig's CSV (e.g. macstepien; see furuta_rt/io/mappings)")
+    p.add_argument("--map", metavar="FIELD.KEY=VALUE", action="append", default=[],
+                   help="override a mapping key (e.g. phi.scale=-1, theta.scale=0.0174533); without --mapping, the scale "
+                   "and offset of a plain CSV's columns (θ's scale applies to theta_dot too)")
+    p.add_argument("--skip-convention-check", action="store_true",
+                   help="diagnose even when the signs or angle units look unlike the rig's (see docs/DIAGNOSE.md)")
     p.add_argument("--json", metavar="OUT.json", default=None, help="write the diagnosis as one JSON object ('-': stdout)")
-    p.add_argument("--report", metavar="OUT_DIR", default=None, help="write figures and summary.md into this directory")
+    p.add_argument("--report", metavar="OUT_DIR", default=None,
+                   help="write report.html (figures, summary.md, diagnosis.json beside it) into this directory")
     p.add_argument("--theta-filter", metavar="none|RAD_S", default=None,
                    help="the θ channel's Bessel cutoff instead of the config's; 'none' for an encoder on the pendulum")
     p.add_argument("--no-closed-loop", action="store_true", help="skip the closed-loop re-simulation (faster)")
     p.set_defaults(func=run)
 
 
-def load(path: str, config: str | None, mapping: str | None) -> tuple[Recording, RigConfig]:
-    """The recording and the rig to diagnose it against (--config, else the log's rig, else thesis)."""
+def load(path: str, config: str | None, mapping: str | None, overrides: list[str] | None = None) -> tuple[Recording, RigConfig]:
+    """The recording and the rig to diagnose it against (--config, else the log's rig, else thesis); ``overrides``:
+    --map FIELD.KEY=VALUE (a mapping's keys, or the scale/offset of a plain CSV's columns)."""
     from furuta_rt.io.mcap_read import is_mcap, log_to_recording, read_log
     from furuta_rt.io.recordings import read_recording
 
@@ -47,6 +55,8 @@ def load(path: str, config: str | None, mapping: str | None) -> tuple[Recording,
         raise UserError(f"recording {p} is a directory; give an MCAP log or a CSV file")
     rig = load_rig(config) if config else None
     if is_mcap(p):
+        if overrides:
+            raise UserError(f"{p} is an MCAP log; --map applies to CSV input only")
         log = read_log(p, timing=False)
         rec = log_to_recording(log)
         if rig is None:
@@ -54,13 +64,45 @@ def load(path: str, config: str | None, mapping: str | None) -> tuple[Recording,
         if log.mode:
             rec.meta["mode"] = log.mode
         return rec, rig
-    if rig is None and mapping:
+    if mapping:
         from furuta_rt.io.mapping import load_mapping
 
-        m = load_mapping(mapping)
-        rig = load_rig(m.rig) if m.rig else None
-    rec = read_recording(p, mapping=mapping, rig=rig)
+        m = load_mapping(mapping, overrides or ())
+        if rig is None:
+            rig = load_rig(m.rig) if m.rig else None
+        rec = read_recording(p, mapping=m, rig=rig)
+    else:
+        from furuta_rt.io.csv import read_csv
+
+        rec = rescaled(read_csv(p, gaps=True), overrides or [])  # gaps and repeated times: repaired by diagnose
     return rec, rig or load_rig("thesis")
+
+
+def rescaled(rec: Recording, overrides: list[str]) -> Recording:
+    """A plain CSV's columns with --map FIELD.scale / FIELD.offset applied (value = scale·column + offset)."""
+    import dataclasses
+
+    from furuta_rt.io.mapping import _angle
+
+    cols: dict[str, np.ndarray] = {}
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        field, _, what = key.strip().partition(".")
+        if not sep or field not in ("theta", "theta_dot", "phi", "u") or what not in ("scale", "offset"):
+            raise UserError(f"--map {item!r}: without --mapping, give theta|theta_dot|phi|u.scale|offset=VALUE "
+                            "(e.g. phi.scale=-1)")
+        try:
+            v = _angle(value.strip())
+        except ValueError:
+            raise UserError(f"--map {item!r}: {value.strip()!r} is not a number") from None
+        base = cols.get(field, getattr(rec, field))
+        if base is None:
+            raise UserError(f"--map {item!r}: the recording has no {field} column")
+        cols[field] = base * v if what == "scale" else base + v
+        if field == "theta" and what == "scale" and rec.theta_dot is not None and not any(
+                o.strip().startswith("theta_dot.") for o in overrides):
+            cols["theta_dot"] = cols.get("theta_dot", rec.theta_dot) * v
+    return dataclasses.replace(rec, **cols) if cols else rec
 
 
 def with_theta_filter(rig: RigConfig, text: str) -> RigConfig:
@@ -81,10 +123,10 @@ def run(args: argparse.Namespace) -> int:
     from furuta_rt.diagnose import Options, diagnose
     from furuta_rt.diagnose.report import text, write_report
 
-    rec, rig = load(args.recording, args.config, args.mapping)
+    rec, rig = load(args.recording, args.config, args.mapping, args.map)
     if args.theta_filter is not None:
         rig = with_theta_filter(rig, args.theta_filter)
-    d = diagnose(rec, rig, Options(closed_loop=not args.no_closed_loop))
+    d = diagnose(rec, rig, Options(closed_loop=not args.no_closed_loop, check_conventions=not args.skip_convention_check))
     out = d.to_json()
     if args.json == "-":
         print(json.dumps(out, default=float))

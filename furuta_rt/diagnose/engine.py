@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose import gate, identify, peaks, stickslip, verdict, verify
+from furuta_rt.diagnose import checks, gate, identify, peaks, stickslip, verdict, verify
 from furuta_rt.diagnose.decay import DecayFit, DecayResult, free_decay, is_free_decay
 from furuta_rt.diagnose.fitting import Stats, fit, paired_t
 from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, STILL_TICKS, Context
@@ -73,6 +73,7 @@ class Options:
     ambiguity_t: float = 3.0  # paired t on the blocks above which two look-alikes are told apart ...
     ambiguity_gain: float = 0.01  # ... when one also fits better by at least this (relative held-out error)
     seed: int = 0
+    check_conventions: bool = True  # refuse a recording whose signs or angle units are clearly not the rig's
 
 
 @dataclass
@@ -363,6 +364,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     notes: list[str] = []
     rec = balancing_span(rec, notes)
     prep = prepare(rec, rig)
+    notes += prep.notes + (checks.conventions(prep, rig) if opts.check_conventions else [])
     sigma_arm = opts.sigma_arm or arm_sigma(prep)
     ctx = Context.build(prep, rig, sigma_arm, opts.sigma_pend, opts.sigma_fine)
     ems: dict[str, EquationModel] = {}

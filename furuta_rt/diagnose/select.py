@@ -183,6 +183,7 @@ class EquationModel:
 
     def grid(self, kind: str) -> np.ndarray:
         u = np.abs(self.ctx.prep.u[self.ctx.prep.valid])
+        u = u[u > 0] if np.any(u > 0) else np.ones(1)  # the commands that act (a command 0 on most samples: the rest)
         if kind == "delay":
             return np.arange(0.0, 0.05 + 1e-12, 0.00025)
         if kind == "latency":  # a total shorter than the nominal one: the path's delay from −command_delay_ticks·h up

@@ -143,6 +143,7 @@ class Prepared:
     valid: np.ndarray  # samples far enough from the ends for the widest filter
     phi_lsb: float
     extra: dict[str, np.ndarray] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)  # what prepare() repaired (gaps filled, samples merged, resampled)
 
     @property
     def n(self) -> int:
@@ -186,26 +187,88 @@ MIN_TRAVEL_COUNTS = 50  # an angle that moves less than this is "still" for the 
 MAX_SIGMA = 0.05  # s, widest filter the diagnosis uses (sets the margin at the ends)
 
 
+MIN_SECONDS = 2.0  # a shorter recording is refused
+MAX_MISSING_SHARE = 0.05  # more non-finite samples than this share of a column: refused
+MAX_GAP_SECONDS = 0.05  # a longer run of non-finite samples (or of missing time) is refused
+
+
+def _gaps(bad: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) index ranges of the runs of True in ``bad``."""
+    edges = np.diff(np.concatenate([[0], bad.astype(int), [0]]))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist(), strict=True))
+
+
+def _repair(t: np.ndarray, cols: dict[str, np.ndarray], notes: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Rows without a time dropped, repeated time stamps merged (the last sample kept), short runs of missing
+    samples filled (angles linearly, the command held); too much missing is a UserError."""
+    keep = np.isfinite(t)
+    if not keep.all():
+        notes.append(f"{int((~keep).sum())} rows without a finite time stamp were dropped")
+        t, cols = t[keep], {k: v[keep] for k, v in cols.items()}
+    if len(t) > 1 and np.any(np.diff(t) < 0):
+        i = int(np.argmax(np.diff(t) < 0))
+        raise UserError(f"the time stamps go backwards at t = {t[i]:.4g} s (to {t[i + 1]:.4g} s): is it several recordings "
+                        "joined? cut it into its parts")
+    last = np.concatenate([np.diff(t) > 0, [True]])  # the last of each run of equal time stamps
+    if not last.all():
+        notes.append(f"{int((~last).sum())} repeated time stamps: the last sample of each was kept")
+        t, cols = t[last], {k: v[last] for k, v in cols.items()}
+    n = len(t)
+    for name, v in cols.items():
+        bad = ~np.isfinite(v)
+        if not bad.any():
+            continue
+        runs = _gaps(bad)
+        longest = max(t[min(b, n - 1)] - t[max(a - 1, 0)] for a, b in runs)
+        if bad.mean() > MAX_MISSING_SHARE or longest > MAX_GAP_SECONDS or bad.all():
+            raise UserError(f"recording column {name!r} has {int(bad.sum())} non-finite values of {n} (longest gap "
+                            f"{longest:.3g} s); the diagnosis fills gaps up to {MAX_GAP_SECONDS * 1e3:.0f} ms and "
+                            f"{100 * MAX_MISSING_SHARE:.0f} % of the samples: cut the recording or clean it")
+        ok = ~bad
+        if name == "u":  # held: the last finite command (the first finite one before it)
+            idx = np.maximum.accumulate(np.where(ok, np.arange(n), -1))
+            filled = v[np.where(idx >= 0, idx, int(np.argmax(ok)))]
+        else:
+            filled = np.interp(t, t[ok], v[ok])
+        cols[name] = filled
+        notes.append(f"column {name!r}: {int(bad.sum())} non-finite samples in {len(runs)} gap(s) filled "
+                     + ("(held)" if name == "u" else "(linear interpolation)"))
+    return t, cols
+
+
 def prepare(rec: Recording, rig: RigConfig, bessel_cutoff: float | str | None = "config") -> Prepared:
-    """Check the recording and put it on a uniform grid at its median sample period."""
+    """Check the recording, repair what can be repaired (saying so in ``notes``), and put it on a uniform grid at
+    its median sample period. Anything that cannot be diagnosed is a one-line UserError."""
+    notes: list[str] = []
     n = len(rec)
     if n < 200:
         raise UserError(f"recording has {n} samples; the diagnosis needs at least 200 (a few seconds)")
-    t = np.asarray(rec.t, dtype=float)
-    dt = float(np.median(np.diff(t)))
-    if not dt > 0:
-        raise UserError("recording time stamps are not increasing")
     cols = {"theta": rec.theta, "phi": rec.phi, "u": rec.u}
     if rec.theta_dot is not None:
         cols["theta_dot"] = rec.theta_dot
-    for name, v in cols.items():
-        if not np.all(np.isfinite(v)):
-            raise UserError(f"recording column {name!r} has non-finite values; clean or cut the recording first")
-    jitter = float(np.max(np.abs(np.diff(t) - dt))) / dt
-    if jitter > 0.05:  # resample onto a uniform grid (u held, the rest interpolated)
+    cols = {k: np.asarray(v, dtype=float) for k, v in cols.items()}
+    t, cols = _repair(np.asarray(rec.t, dtype=float), cols, notes)
+    if len(t) < 200:
+        raise UserError(f"recording has {len(t)} usable samples; the diagnosis needs at least 200 (a few seconds)")
+    steps = np.diff(t)
+    dt = float(np.median(steps))
+    if not dt > 0:
+        raise UserError("recording time stamps are not increasing")
+    if t[-1] - t[0] < MIN_SECONDS:
+        raise UserError(f"recording is {t[-1] - t[0]:.2f} s long; the diagnosis needs at least {MIN_SECONDS:.0f} s")
+    holes = np.flatnonzero(steps > MAX_GAP_SECONDS + 1.5 * dt)
+    if len(holes):
+        i = int(holes[np.argmax(steps[holes])])
+        raise UserError(f"recording has {len(holes)} gap(s) in time, the longest {steps[i]:.3g} s at t = {t[i]:.4g} s; "
+                        f"the diagnosis bridges at most {MAX_GAP_SECONDS * 1e3:.0f} ms: cut the recording there")
+    jitter = float(np.max(np.abs(steps - dt))) / dt
+    resampled = jitter > 0.05
+    if resampled:  # resample onto a uniform grid (u held, the rest interpolated)
         grid = np.arange(t[0], t[-1], dt)
-        idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, n - 1)
+        idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)
         cols = {k: (v[idx] if k == "u" else np.interp(grid, t, v)) for k, v in cols.items()}
+        notes.append(f"irregular sample times (up to {100 * jitter:.0f} % off the median period {1e3 * dt:.3g} ms): "
+                     "resampled onto a uniform grid (angles interpolated, the command held)")
         t = grid
     cutoff = rig.sensors.bessel_cutoff if bessel_cutoff == "config" else bessel_cutoff
     margin = math.ceil(5 * MAX_SIGMA / dt) + 2
@@ -213,12 +276,12 @@ def prepare(rec: Recording, rig: RigConfig, bessel_cutoff: float | str | None = 
     valid[margin : len(t) - margin] = True
     if valid.sum() < 100:
         raise UserError(f"recording is {t[-1] - t[0]:.2f} s long; the diagnosis needs at least {2 * margin * dt + 1:.1f} s")
+    same = len(t) == n and not resampled
     return Prepared(
-        t=t, theta_f=np.asarray(cols["theta"], float),
-        theta_dot_f=None if "theta_dot" not in cols else np.asarray(cols["theta_dot"], float),
-        phi=np.asarray(cols["phi"], float), u=np.asarray(cols["u"], float), dt=dt,
+        t=t, theta_f=cols["theta"], theta_dot_f=cols.get("theta_dot"), phi=cols["phi"], u=cols["u"], dt=dt,
         bessel=BesselPath(cutoff) if cutoff else None,
         command_lag=rig.control.command_delay_ticks * dt, valid=valid,
         phi_lsb=2 * math.pi / rig.sensors.encoder_counts_per_rev,
-        extra={k: np.asarray(v) for k, v in rec.extra.items() if len(v) == n and jitter <= 0.05},
+        extra={k: np.asarray(v) for k, v in rec.extra.items() if len(v) == n and same},
+        notes=notes,
     )

@@ -20,8 +20,10 @@ REQUIRED = ("t", "theta", "phi", "u")
 OPTIONAL = ("theta_dot",)
 
 
-def read_csv(path: str | Path) -> Recording:
-    """Read a recording; every problem is a UserError naming the file, row and column."""
+def read_csv(path: str | Path, gaps: bool = False) -> Recording:
+    """Read a recording; every problem is a UserError naming the file, row and column. With ``gaps``, empty or
+    non-finite cells are read as NaN and time stamps need only not decrease (for a reader that repairs them, e.g.
+    furuta_rt.diagnose.signals.prepare)."""
     p = Path(path)
     if not p.exists():
         raise UserError(f"recording {p} does not exist")
@@ -47,10 +49,10 @@ def read_csv(path: str | Path) -> Recording:
                 values = []
                 for name, cell in zip(header, row, strict=True):
                     try:
-                        v = float(cell)
+                        v = math.nan if gaps and not cell.strip() else float(cell)
                     except ValueError:
                         raise UserError(f"{p}, line {lineno}, column {name!r}: {cell!r} is not a number") from None
-                    if not math.isfinite(v) and name in REQUIRED:
+                    if not math.isfinite(v) and name in REQUIRED and not gaps:
                         raise UserError(f"{p}, line {lineno}, column {name!r}: {cell!r} is not finite")
                     values.append(v)
                 rows.append(values)
@@ -62,9 +64,10 @@ def read_csv(path: str | Path) -> Recording:
         raise UserError(f"{p}: needs at least two data rows, found {len(rows)}")
     data = np.asarray(rows, dtype=float)
     cols = {name: data[:, i] for i, name in enumerate(header)}
-    if np.any(np.diff(cols["t"]) <= 0):
-        bad = int(np.argmax(np.diff(cols["t"]) <= 0)) + 3
-        raise UserError(f"{p}, line {bad}: time column 't' is not strictly increasing")
+    step = np.diff(cols["t"])
+    if np.any(step < 0 if gaps else step <= 0):
+        bad = int(np.argmax(step < 0 if gaps else step <= 0)) + 3
+        raise UserError(f"{p}, line {bad}: time column 't' is not {'increasing' if gaps else 'strictly increasing'}")
     extra = {k: v for k, v in cols.items() if k not in REQUIRED + OPTIONAL}
     return Recording(
         t=cols["t"], theta=cols["theta"], phi=cols["phi"], u=cols["u"], theta_dot=cols.get("theta_dot"),

@@ -1,0 +1,173 @@
+"""`furuta-rt diagnose` on a matrix of recording shapes (issue 13, item 4): each gives a one-line error that says
+what to do, or a diagnosis that says what it repaired — never a traceback. Through the real CLI (a subprocess),
+plus a property-based test over shapes in-process."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from furuta_rt.config import load_rig
+from furuta_rt.diagnose import Options, diagnose, suite
+from furuta_rt.errors import UserError
+from furuta_rt.io.csv import write_csv
+from furuta_rt.recording import Recording
+
+FAST = Options(closed_loop=False, max_windows=8)
+KEYS = {"effects", "equations", "fit", "notes", "located"}
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return load_rig("thesis")
+
+
+@pytest.fixture(scope="module")
+def base(rig, tmp_path_factory) -> Recording:
+    """8 s of the suite's arm-Coulomb case: balancing with an arm reference (the arm moves, the command varies)."""
+    case = next(c for c in suite.quick_cases() if c.name == "arm_coulomb")
+    return suite.generate(dataclasses.replace(case, duration=8.0), rig, tmp_path_factory.mktemp("suite"))
+
+
+def cli(*args: str) -> tuple[int, str, str]:
+    exe = Path(sys.executable).with_name("furuta-rt")
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-c", "import sys; from furuta_rt.cli import main; sys.exit(main())"]
+    p = subprocess.run([*cmd, "diagnose", *args], capture_output=True, text=True, timeout=300)
+    return p.returncode, p.stdout, p.stderr
+
+
+def shapes(base: Recording) -> dict[str, tuple[Recording, str]]:
+    """name → (recording, what the CLI must say: 'ok:<a note's words>' or 'error:<words of the one-line error>')."""
+    n, t = len(base), base.t
+    rng = np.random.default_rng(1)
+
+    def r(**kw: np.ndarray) -> Recording:
+        return dataclasses.replace(base, **kw)
+
+    def flipped(name: str, k: float) -> Recording:
+        kw = {name: getattr(base, name) * k}
+        if name == "theta" and base.theta_dot is not None:
+            kw["theta_dot"] = base.theta_dot * k
+        return r(**kw)
+
+    mostly_zero = base.u.copy()
+    mostly_zero[: 2 * n // 3] = 0.0
+    isolated = base.theta.copy()
+    isolated[rng.choice(np.arange(200, n - 200), 15, replace=False)] = np.nan
+    long_gap = base.phi.copy()
+    long_gap[1000:1200] = np.nan
+    repeated = t.copy()
+    repeated[500:506] = repeated[500]
+    jitter = np.sort(t + rng.uniform(-0.45, 0.45, n) * (t[1] - t[0]))
+    backwards = t.copy()
+    backwards[2000:] -= 1.0
+    z = np.zeros(n)
+    hanging = Recording(t=t, theta=math.pi + 2e-4 * rng.standard_normal(n), phi=z, u=z)
+    swinging = Recording(t=t, theta=math.pi + 0.4 * np.cos(2 * math.pi * 0.9 * t) * np.exp(-t / 6), phi=z, u=z)
+    return {
+        "command zero on 2/3": (r(u=mostly_zero), "ok:"),
+        "constant command": (r(u=np.full(n, 0.2)), "ok:the command is constant"),
+        "shorter than 2 s": (base.slice(0, int(1.5 / (t[1] - t[0]))), "error:needs at least 2 s"),
+        "isolated NaN rows": (r(theta=isolated), "ok:non-finite samples in 15 gap(s) filled"),
+        "0.4 s of NaN": (r(phi=long_gap), "error:cut the recording or clean it"),
+        "repeated time stamps": (r(t=repeated), "ok:repeated time stamps"),
+        "irregular time stamps": (r(t=jitter), "ok:resampled onto a uniform grid"),
+        "time going backwards": (r(t=backwards), "error:not increasing"),
+        "arm never moves": (swinging, "ok:the arm hardly moves"),
+        "pendulum hanging throughout": (hanging, "ok:the command is constant"),
+        "θ reversed": (flipped("theta", -1.0), "error:the sign of θ appears reversed relative to the rig"),
+        "φ reversed": (flipped("phi", -1.0), "error:the sign of φ appears reversed relative to the rig"),
+        "u reversed": (flipped("u", -1.0), "error:the sign of u appears reversed relative to the rig"),
+        "θ in degrees": (flipped("theta", 180 / math.pi), "error:θ appears to be in degrees"),
+        "φ in degrees": (flipped("phi", 180 / math.pi), "error:φ appears to be in degrees"),
+        "hanging, θ in degrees": (dataclasses.replace(hanging, theta=hanging.theta * 180 / math.pi),
+                                  "error:θ appears to be in degrees: the pendulum rests at θ = +180"),
+    }
+
+
+def test_shape_matrix_through_the_cli(base, tmp_path) -> None:
+    failures = []
+    for name, (rec, expect) in shapes(base).items():
+        path = tmp_path / f"{abs(hash(name))}.csv"
+        write_csv(rec, path)
+        code, out, err = cli(str(path), "--json", "-", "--no-closed-loop")
+        kind, words = expect.split(":", 1)
+        assert "Traceback" not in err, (name, err)
+        if kind == "error":
+            ok = code == 2 and err.count("\n") == 1 and words in err and not out
+        else:
+            d = json.loads(out) if code == 0 else {}
+            ok = code == 0 and set(d) >= KEYS and (not words or any(words in note for note in d["notes"]))
+        if not ok:
+            failures.append(f"{name}: exit {code}, stderr {err.strip()!r}, notes {json.loads(out)['notes'] if code == 0 else ''}")
+    assert not failures, "\n".join(failures)
+
+
+def test_a_reversed_column_is_diagnosed_once_flipped_back(base, tmp_path) -> None:
+    """The fix the error names works: φ reversed, then --map phi.scale=-1 gives the diagnosis of the original."""
+    path = tmp_path / "phi_reversed.csv"
+    write_csv(dataclasses.replace(base, phi=-base.phi), path)
+    code, _, err = cli(str(path), "--json", "-", "--no-closed-loop")
+    assert code == 2 and "--map phi.scale=-1" in err
+    code, out, err = cli(str(path), "--json", "-", "--no-closed-loop", "--map", "phi.scale=-1")
+    assert code == 0, err
+    assert [e["name"] for e in json.loads(out)["effects"]] == ["arm_coulomb"]
+    code, out, _ = cli(str(path), "--json", "-", "--no-closed-loop", "--skip-convention-check")
+    assert code == 0 and "arm_coulomb" not in [e["name"] for e in json.loads(out)["effects"]]
+
+
+@st.composite
+def recording_shapes(draw: st.DrawFn, base: Recording) -> Recording:
+    """A window of ``base`` (1–6 s) with NaN runs, timestamp jitter and repeats, a zero or constant command and a
+    scaled or reversed column, each drawn or not."""
+    dt = float(base.t[1] - base.t[0])
+    n = int(draw(st.floats(1.0, 6.0)) / dt)
+    a = draw(st.integers(0, len(base) - n))
+    rec = base.slice(a, a + n)
+    t, theta, phi, u = rec.t.copy(), rec.theta.copy(), rec.phi.copy(), rec.u.copy()
+    for _ in range(draw(st.integers(0, 4))):  # NaN runs in one column
+        col = draw(st.sampled_from([theta, phi, u]))
+        i = draw(st.integers(0, n - 1))
+        col[i : i + draw(st.integers(1, 60))] = np.nan
+    if draw(st.booleans()):
+        t = np.sort(t + draw(st.floats(0.0, 0.5)) * dt * np.random.default_rng(a).uniform(-1, 1, n))
+    for _ in range(draw(st.integers(0, 3))):
+        i = draw(st.integers(1, n - 2))
+        t[i] = t[i - 1]
+    command = draw(st.sampled_from(["as is", "zero", "constant", "mostly zero"]))
+    if command == "zero":
+        u[:] = 0.0
+    elif command == "constant":
+        u[:] = 0.3
+    elif command == "mostly zero":
+        u[: 3 * n // 4] = 0.0
+    scale = draw(st.sampled_from([1.0, -1.0, 180 / math.pi, 0.5]))
+    target = draw(st.sampled_from(["theta", "phi", "u"]))
+    cols = {"theta": theta, "phi": phi, "u": u}
+    cols[target] = cols[target] * scale
+    return Recording(t=t, **cols)
+
+
+def test_no_recording_shape_raises_anything_but_a_one_line_user_error(rig, base) -> None:
+    @settings(max_examples=14, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+    @given(recording_shapes(base))
+    def check(rec: Recording) -> None:
+        try:
+            d = diagnose(rec, rig, FAST)
+        except UserError as err:
+            assert str(err) and "\n" not in str(err)
+            return
+        out = json.loads(json.dumps(d.to_json()))
+        assert set(out) >= KEYS
+        assert set(out["equations"]) == {"arm", "pendulum"}
+
+    check()
