@@ -121,8 +121,10 @@ def with_theta_filter(rig: RigConfig, text: str) -> RigConfig:
 
 def run(args: argparse.Namespace) -> int:
     from furuta_rt.diagnose import Options, diagnose
-    from furuta_rt.diagnose.report import text, write_report
+    from furuta_rt.diagnose.report import check_directory, text, write_report
 
+    if args.report:
+        check_directory(Path(args.report))  # before the diagnosis: a user's files are never overwritten
     rec, rig = load(args.recording, args.config, args.mapping, args.map)
     if args.theta_filter is not None:
         rig = with_theta_filter(rig, args.theta_filter)
@@ -141,9 +143,9 @@ def run(args: argparse.Namespace) -> int:
                 raise UserError(f"cannot write {args.json}: {err.strerror}") from None
     if args.report:
         try:
-            paths = write_report(d, Path(args.report))
+            write_report(d, Path(args.report))
         except OSError as err:
             raise UserError(f"cannot write the report into {args.report}: {err.strerror}") from None
         if args.json != "-":
-            Console().print(f"report: {paths[-2]}", markup=False)
+            Console().print(f"report: {Path(args.report) / 'report.html'}", markup=False)
     return 0

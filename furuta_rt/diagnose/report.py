@@ -1,4 +1,4 @@
-"""The diagnosis as text, as a report directory (figures + summary.md) and its figures.
+"""The diagnosis as text, as a report directory (report.html, its figures, summary.md, diagnosis.json).
 
 Figures (matplotlib Agg canvases, no pyplot state):
   residuals.png  the inverse-dynamics residual of each equation before (nominal) and after (augmented)
@@ -22,12 +22,20 @@ from matplotlib.figure import Figure
 from furuta_rt.diagnose.decay import DecayResult
 from furuta_rt.diagnose.engine import Diagnosis
 from furuta_rt.diagnose.locate import features
+from furuta_rt.diagnose.page import MARKER, html_page
 from furuta_rt.diagnose.stickslip import WindowStage, simulate_arm
 from furuta_rt.diagnose.verify import quiet, simulate_window
+from furuta_rt.errors import UserError
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 
-DPI = 72
+DPI = 150  # figures are 7–10 in wide: 1050–1500 px
+NOT_ASSESSED_ROWS = 50  # an equation with fewer usable rows is shown as not assessed, not as an empty axis
+UNITS = {  # the signals a residual is plotted against (locate.features), with units
+    "sgn(φ̇)": "sgn(φ̇) (−1, 0, +1)", "φ̇": "φ̇ (rad/s)", "φ": "φ (rad)", "u": "u, command torque (N m)",
+    "u̇": "u̇, command torque rate (N m/s)", "φ̈": "φ̈ (rad/s²)", "θ": "θ (rad)", "θ̇": "θ̇ (rad/s)",
+    "sgn(θ̇)": "sgn(θ̇) (−1, 0, +1)", "1": "t (s)",
+}
 
 
 def _figure(rows: int, cols: int, size: tuple[float, float]) -> tuple[Figure, np.ndarray]:
@@ -83,10 +91,13 @@ def figures(d: Diagnosis, out: Path, prefix: str = "") -> list[Path]:
     t = ctx.prep.t - ctx.prep.t[0]
     paths = []
     # residuals before / after
-    fig, ax = _figure(2, 1, (8, 5))
+    fig, ax = _figure(2, 1, (9, 5.5))
     for i, (eq, r) in enumerate(d.equations.items()):
         em = d.models[eq]
         rows = em.row_mask
+        if rows.sum() < NOT_ASSESSED_ROWS:
+            _not_assessed(ax[i, 0], eq, int(rows.sum()))
+            continue
         y0 = em.residual(r.nominal.spec)
         y1 = em.residual(r.selected.spec, r.selected.fit.coef)
         a = ax[i, 0]
@@ -95,36 +106,42 @@ def figures(d: Diagnosis, out: Path, prefix: str = "") -> list[Path]:
         for lo, hi in r.location.times:
             a.axvspan(lo - ctx.prep.t[0], hi - ctx.prep.t[0], color="C1", alpha=0.15)
         a.set_ylabel(f"{eq} residual (N m)")
+        a.set_xlabel("t (s)")
+        a.set_title(f"{eq} equation: inverse-dynamics residual, nominal and augmented (shaded: where it is largest)",
+                    fontsize=9)
         a.legend(loc="upper right", fontsize=7, markerscale=6)
-    ax[-1, 0].set_xlabel("t (s)")
     paths.append(_save(fig, out / f"{prefix}residuals.png"))
-    # where: nominal residual against the signal it follows most
-    fig, ax = _figure(1, 2, (8, 3.2))
+    # where: nominal residual against the signal it follows most (one row per equation, so the titles fit)
+    fig, ax = _figure(2, 1, (9, 6.5))
     for i, (eq, r) in enumerate(d.equations.items()):
-        a = ax[0, i]
-        corr = {k: v for k, v in r.location.correlations.items() if k != "1"}
-        key = max(corr, key=lambda k: abs(corr[k])) if corr else None
+        a = ax[i, 0]
         rows = d.models[eq].row_mask
+        if rows.sum() < NOT_ASSESSED_ROWS or not r.location.correlations:
+            _not_assessed(a, eq, int(rows.sum()))
+            continue
+        corr = {k: v for k, v in r.location.correlations.items() if k != "1"}
+        key = max(corr, key=lambda k: abs(corr[k])) if corr else "1"
         y0 = d.models[eq].residual(r.nominal.spec)[rows]
         if abs(r.location.correlations.get("1", 0.0)) > 0.5:  # a constant bias: show it against time and zero
-            a.plot(t[rows], y0, ".", ms=1, alpha=0.3, color="C3")
-            a.axhline(0.0, color="k", lw=0.8)
-            a.set_xlabel("t (s)")
             key = "1"
-        elif key is not None:
-            x = features(ctx, eq)[key][rows]
-            a.plot(x, y0, ".", ms=1, alpha=0.3, color="C3")
-            a.set_xlabel(key)
-        a.set_ylabel(f"{eq} residual, nominal (N m)")
-        regions = ", ".join(f"{k} ×{v:.1f}" for k, v in r.location.regions.items())
-        what = "constant bias" if key == "1" else f"r = {corr.get(key, 0):+.2f} with {key}"
-        a.set_title(f"{eq}: {what}; rms by region: {regions}", fontsize=7)
+        x = t[rows] if key == "1" else features(ctx, eq)[key][rows]
+        a.plot(x, y0, ".", ms=1, alpha=0.3, color="C3")
+        a.axhline(0.0, color="k", lw=0.8)
+        a.set_xlabel(UNITS.get(key, key))
+        a.set_ylabel(f"{eq} residual (N m)")
+        what = "a constant bias" if key == "1" else f"follows {key} (r = {corr.get(key, 0):+.2f})"
+        a.set_title(f"{eq} equation: nominal residual {100 * r.location.relative_rms:.1f} % of its torque scale; {what}",
+                    fontsize=9)
+        regions = "\n".join(f"{k}: rms ×{v:.1f} of elsewhere" for k, v in r.location.regions.items())
+        if regions:
+            a.text(0.01, 0.97, regions, transform=a.transAxes, va="top", fontsize=7,
+                   bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.8"})
     paths.append(_save(fig, out / f"{prefix}where.png"))
     # held-out prediction windows
     pred = d.prediction
     starts = pred.get("starts", [])
     if starts:
-        fig, ax = _figure(2, 1, (8, 4.5))
+        fig, ax = _figure(2, 1, (9, 5.5))
         rig = ctx.rig
         models = (RigModel.from_config(quiet(rig)), RigModel.from_config(quiet(rig), pred["augmented"]))
         h = pred["horizon"]
@@ -137,12 +154,14 @@ def figures(d: Diagnosis, out: Path, prefix: str = "") -> list[Path]:
                 th, ph = simulate_window(model, ctx.prep, ctx.fine, k, h, pred["substep_hz"])
                 ax[0, 0].plot(tt, th, style, lw=1)
                 ax[1, 0].plot(tt, ph, style, lw=1)
-        ax[0, 0].set_ylabel("θ_f (rad)")
-        ax[1, 0].set_ylabel("φ (rad)")
+        ax[0, 0].set_ylabel("θ_f, measured pendulum angle (rad)", fontsize=8)
+        ax[1, 0].set_ylabel("φ, arm angle (rad)", fontsize=8)
+        ax[0, 0].set_xlabel("t (s)")
         ax[1, 0].set_xlabel("t (s)")
         ax[0, 0].legend(["data", "nominal", "augmented"], fontsize=7)
-        title = f"held-out prediction NRMSE: nominal {d.fit['nominal']:.3f}, augmented {d.fit['augmented']:.3f}"
-        ax[0, 0].set_title(title, fontsize=8)
+        title = (f"held-out prediction windows of {h * ctx.prep.dt:.2f} s, NRMSE: nominal {d.fit['nominal']:.3f}, "
+                 f"augmented {d.fit['augmented']:.3f}")
+        ax[0, 0].set_title(title, fontsize=9)
         paths.append(_save(fig, out / f"{prefix}prediction.png"))
     if d.decay_result is not None:
         paths.append(decay_figure(d.decay_result, out / f"{prefix}decay.png"))
@@ -163,7 +182,7 @@ def window_figure(d: Diagnosis, stage: WindowStage, path: Path, count: int = 4) 
     rig = quiet(ctx.rig)
     models = (RigModel.from_config(rig, effects_of_dict(without)), RigModel.from_config(rig, effects_of_dict(found)))
     wins = stage.windows[:: max(1, len(stage.windows) // count)][:count]
-    fig, ax = _figure(2, len(wins), (2.6 * len(wins), 4.6))
+    fig, ax = _figure(2, len(wins), (max(7.0, 2.6 * len(wins)), 4.8))
     t0 = prep.t[0]
     for i, w in enumerate(wins):
         span = slice(w.start + 1, w.start + 1 + w.horizon)
@@ -218,16 +237,56 @@ def decay_figure(r: DecayResult, path: Path) -> Path:
     return _save(fig, path)
 
 
+OUTPUTS = ("report.html", "summary.md", "diagnosis.json", "residuals.png", "where.png", "prediction.png", "decay.png",
+           "sticks.png", "peaks.png")  # everything write_report may write (and replace, in a directory it made)
+
+
+def check_directory(out: Path) -> None:
+    """Refuse a path that is a file, or a directory that holds anything but an earlier report (a user's files are
+    never overwritten)."""
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--report {out}: is a file; give a directory (it is created if missing)")
+    if not out.exists():
+        return
+    present = {p.name for p in out.iterdir()}
+    page = out / "report.html"
+    ours = page.is_file() and MARKER in page.read_text(errors="replace")[:2000]
+    foreign = sorted(present - set(OUTPUTS)) if ours else sorted(present)
+    if foreign:
+        raise UserError(f"--report {out}: the directory holds files that are not a furuta-rt report ({', '.join(foreign[:3])}"
+                        f"{', …' if len(foreign) > 3 else ''}); give a new or empty directory")
+
+
+def _own_directory(out: Path) -> None:
+    """``out`` checked (check_directory), and an earlier report's outputs removed (no stale figure beside the page)."""
+    check_directory(out)
+    if out.exists():
+        for p in out.iterdir():
+            p.unlink()
+
+
 def write_report(d: Diagnosis, out: Path) -> list[Path]:
+    """report.html (the page a person reads), its figures, summary.md (text) and diagnosis.json in ``out``."""
+    _own_directory(out)
     paths = figures(d, out)
     md = ["# furuta-rt diagnose", "", *[f"    {line}" for line in text(d)], ""]
     md += [f"![{p.stem}]({p.name})" for p in paths]
     (out / "summary.md").write_text("\n".join(md) + "\n")
-    (out / "diagnosis.json").write_text(json.dumps(d.to_json(), indent=1, default=float))
-    return [*paths, out / "summary.md", out / "diagnosis.json"]
+    data = d.to_json()
+    (out / "diagnosis.json").write_text(json.dumps(data, indent=1, default=float))
+    page = out / "report.html"
+    page.write_text(html_page(data, [p.name for p in paths], text(d)))
+    return [*paths, page, out / "summary.md", out / "diagnosis.json"]
 
 
 # ------------------------------------------------------------------------------ helpers
+def _not_assessed(a, eq: str, rows: int) -> None:
+    """A panel that says why an equation is not shown (instead of an empty axis)."""
+    a.set_axis_off()
+    a.text(0.5, 0.5, f"{eq} equation not assessed: {rows} usable samples (it needs the joint to move; see the notes)",
+           transform=a.transAxes, ha="center", va="center", fontsize=10, wrap=True)
+
+
 def _save(fig: Figure, path: Path) -> Path:
     fig.savefig(path, dpi=DPI)
     return path
