@@ -127,7 +127,7 @@ def conventions(prep: Prepared, rig: RigConfig) -> list[str]:
     rows = prep.valid
     u = prep.u[rows]
     if float(np.ptp(u)) == 0.0:
-        notes.append(f"the command is constant (u = {u[0]:.4g} throughout): the command path (input gain, delay, deadzone, "
+        notes.append(f"the command is constant (u = {u[0] + 0.0:.4g} throughout): the command path (input gain, delay, deadzone, "
                      "limit) cannot be assessed")
     st = prep.states(SIGMA)
     rest = _rest_in_degrees(st.theta[rows], st.theta_dot[rows])
