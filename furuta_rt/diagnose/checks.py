@@ -44,6 +44,7 @@ TIE = 1.25  # hypotheses within this factor of the best fit the row alike (e.g. 
 HINT = 0.7  # a better fit by this much (not strong): a note
 GAIN_T = 6.0  # |t| of a negative input gain (block standard error) to declare it
 N_BLOCKS = 10
+ROW_STEP = 0.008  # s between the rows the checks use
 REST_DEGREES = (170.0, 190.0)  # |θ| at rest read as this: hanging, in degrees
 
 
@@ -130,6 +131,7 @@ def conventions(prep: Prepared, rig: RigConfig) -> list[str]:
         notes.append(f"the command is constant (u = {u[0] + 0.0:.4g} throughout): the command path (input gain, delay, deadzone, "
                      "limit) cannot be assessed")
     st = prep.states(SIGMA)
+    rows = rows & (np.arange(prep.n) % max(1, round(ROW_STEP / prep.dt)) == 0)  # the σ = 40 ms signals are smooth
     rest = _rest_in_degrees(st.theta[rows], st.theta_dot[rows])
     if rest is not None:
         raise UserError(f"θ appears to be in degrees: the pendulum rests at θ = {rest:+.1f}, hanging in degrees "
