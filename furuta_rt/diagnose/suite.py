@@ -408,7 +408,7 @@ class RealisticCase:
 
 
 def _r(shape: str, excitation: str, seed: int, gain: float, j_factor: float, latency: float, *extra: str,
-       held_out: bool = False) -> RealisticCase:
+       held_out: bool = False, duration: float = 30.0) -> RealisticCase:
     """A realistic case: torque per volt × ``gain``, arm inertia × ``j_factor``, the shape's arm damping, a total
     latency of ``latency`` ticks (a ``command_latency`` effect where it differs from the config's), and ``extra``."""
     nominal = load_rig(shape)
@@ -419,14 +419,15 @@ def _r(shape: str, excitation: str, seed: int, gain: float, j_factor: float, lat
         effects.append(f"command_latency.delay={latency / nominal.control.rate_hz:.6g}")
     tags = "+".join(dict.fromkeys(e.split(".")[0] for e in extra))
     name = f"{shape}/{excitation}" + (f"+{tags}" if tags else "")
-    return RealisticCase(name, shape, excitation, tuple(effects), float(latency), seed, held_out=held_out)
+    return RealisticCase(name, shape, excitation, tuple(effects), float(latency), seed, duration, held_out)
 
 
 def realistic_cases() -> list[RealisticCase]:
     """Voltage-driven DC-motor rigs shaped like the QUBE-Servo 2 and the macstepien rig: torque per volt ×0.3…×10,
     arm inertia ×0.5…×2, latency 0–3 ticks from the config's 1, open-loop sine/chirp/step excitation with the
-    pendulum hanging, swing-ups and balancing, encoder θ, arm bias, a cable spring with Coulomb friction.
-    The first ten are the in-sample part (looked at while building); the ``held_out`` ones (other seeds, sizes
+    pendulum hanging, swing-ups and balancing, encoder θ, arm bias, a cable spring with Coulomb friction, and one
+    short single step from rest shaped like the real macstepien recordings.
+    The first eleven are the in-sample part (looked at while building); the ``held_out`` ones (other seeds, sizes
     and combinations) are listed and printed apart and are not tuned on."""
     spring = ("arm_spring.k=0.002", "arm_spring.phi0=0.1", "arm_coulomb.Fc=0.002")
     spring_m = ("arm_spring.k=0.01", "arm_spring.phi0=-0.2", "arm_coulomb.Fc=0.006")
@@ -441,6 +442,7 @@ def realistic_cases() -> list[RealisticCase]:
         _r("macstepien", "swingup", 108, 7.0, 0.5, 2, "pendulum_viscous.bp=1.8e-05"),
         _r("macstepien", "chirp", 109, 0.3, 2.0, 4, *spring_m),
         _r("macstepien", "balance", 110, 3.0, 1.2, 0),
+        _r("macstepien", "single_step", 111, 7.0, 0.5, 1, duration=5.0),  # shaped like the real step recordings
         # held out
         _r("qube_servo2", "sine", 201, 8.0, 0.8, 2.5, held_out=True),
         _r("qube_servo2", "swingup", 202, 1.2, 1.8, 1, "arm_bias.tau=0.0004", held_out=True),

@@ -6,8 +6,8 @@ arm's inertia off by ``arm_inertia``, arm damping, a cable spring with Coulomb f
 pendulum damping) and a true command latency in ticks (``command_latency``, total from the sample instant; the
 shipped rigs' config says 1 tick). It is driven the way such rigs are driven:
 
-* ``sine`` / ``chirp`` / ``step``: open-loop voltage with the pendulum hanging (a sine or a 0.2→4 Hz chirp around
-  the arm's rest, a train of ± steps that spins the arm);
+* ``sine`` / ``chirp`` / ``step`` / ``single_step``: open-loop voltage with the pendulum hanging (a sine or a
+  0.2→4 Hz chirp around the arm's rest, a train of ± steps that spins the arm, one step from rest held to the end);
 * ``swingup``: an energy-pumping swing-up (Åström & Furuta 2000: u ∝ (E − E_up)·sgn(θ̇ cos θ)) that hands over to
   a state feedback near upright and balances to the end (re-pumping if the pendulum falls);
 * ``balance``: state-feedback balancing from near upright with a slow two-sine arm reference.
@@ -68,7 +68,8 @@ def true_steady_speed_per_volt(nominal: RigConfig, effects: Effects) -> float:
 
 
 def open_loop_voltage(kind: str, n: int, rate_hz: float, volts: float, seed: int) -> np.ndarray:
-    """Open-loop excitation: ``sine`` (two sines), ``chirp`` (0.2→4 Hz) or ``step`` (± steps, 2 s on, 1 s off)."""
+    """Open-loop excitation: ``sine`` (two sines), ``chirp`` (0.2→4 Hz), ``step`` (± steps, 2 s on, 1 s off) or
+    ``single_step`` (1 s at rest, then one step held to the end, as the macstepien recordings)."""
     t = np.arange(n) / rate_hz
     rng = np.random.default_rng(seed)
     if kind == "sine":
@@ -88,6 +89,8 @@ def open_loop_voltage(kind: str, n: int, rate_hz: float, volts: float, seed: int
         u = np.where(on, levels[k], 0.0)
         u[t < 0.5] = 0.0  # starts at rest
         return u
+    if kind == "single_step":  # as the macstepien recordings: at rest, then one step held to the end
+        return np.where(t >= 1.0, volts, 0.0)
     raise ValueError(f"unknown open-loop excitation {kind!r}")
 
 
@@ -129,7 +132,7 @@ def simulate(
     rate = nominal.control.rate_hz
     dt = 1.0 / rate
     n = round(duration * rate)
-    hanging = excitation in ("sine", "chirp", "step", "swingup")
+    hanging = excitation in ("sine", "chirp", "step", "single_step", "swingup")
     rng = np.random.default_rng(seed)
     x0 = (math.pi + 0.02 * rng.standard_normal(), 0.0, 0.0, 0.0) if hanging else (0.04, 0.0, 0.0, 0.0)
     sim = Simulator(model, rate, SUBSTEP_HZ, seed=seed, x0=x0)
@@ -139,9 +142,10 @@ def simulate(
     K_per_volt = true_steady_speed_per_volt(nominal, effects)
     limit = nominal.actuator.limit
     u_open = None
-    if excitation in ("sine", "chirp", "step"):
-        # the experimenter picks a voltage that moves the arm well: ~3 rad/s (sine, chirp), ~6 rad/s steps
-        v = volts if volts is not None else (6.0 if excitation == "step" else 3.0) / K_per_volt
+    if excitation in ("sine", "chirp", "step", "single_step"):
+        # the experimenter picks a voltage that moves the arm well: ~3 rad/s (sine, chirp), 6–15 rad/s steps
+        speed = {"step": 6.0, "single_step": 15.0}.get(excitation, 3.0)
+        v = volts if volts is not None else speed / K_per_volt
         u_open = np.clip(open_loop_voltage(excitation, n, rate, min(v, limit), seed), -limit, limit)
     gains = np.asarray(design_gains(design_rig(nominal, effects)), float)
     ref = 0.4 * np.sin(2 * np.pi * np.arange(n) * dt / 5.0) + 0.2 * np.sin(2 * np.pi * np.arange(n) * dt / 1.7 + 1.0)
