@@ -277,6 +277,7 @@ class CaseScore:
     reported: list[dict] = field(default_factory=list)
     ambiguities: list[dict] = field(default_factory=list)
     verdicts: dict[str, str] = field(default_factory=dict)  # equation → verdict (furuta_rt.diagnose.verdict)
+    fit_verdict: str = ""  # the diagnosis's paired verdict on the held-out prediction (improved/unchanged/worse/diverges)
 
     @property
     def improved(self) -> bool:
@@ -301,6 +302,7 @@ class CaseScore:
             "detected": self.detected, "detected_lookalike": self.detected_lookalike, "errors": self.errors,
             "false": self.false, "nominal": self.nominal, "augmented": self.augmented, "seconds": self.seconds,
             "verdicts": self.verdicts, "expected_verdicts": self.expected_verdicts,
+            "fit_verdict": self.fit_verdict,
         }
 
 
@@ -324,7 +326,8 @@ def score(case: Case, diagnosis_json: dict, seconds: float) -> CaseScore:
     fit = diagnosis_json["fit"]
     verdicts = {eq: e["verdict"] for eq, e in diagnosis_json["equations"].items() if "verdict" in e}
     return CaseScore(case, detected, via_alt, errors, false, fit["nominal"], fit["augmented"], seconds,
-                     diagnosis_json["effects"], diagnosis_json["ambiguities"], verdicts)
+                     diagnosis_json["effects"], diagnosis_json["ambiguities"], verdicts,
+                     str(fit.get("verdict", "")))
 
 
 def run_case(case: Case, rig: RigConfig, cache: Path | None = None, closed_loop: bool = False) -> tuple[CaseScore, dict]:
@@ -354,6 +357,7 @@ def totals(scores: list[CaseScore]) -> dict:
         "false_discoveries_null_cases": sum(len(s.false) for s in nulls),
         "null_cases": len(nulls),
         "fit_improved": sum(s.improved for s in with_effect), "cases_with_effect": len(with_effect),
+        "fit_verdicts": {v: sum(s.fit_verdict == v for s in with_effect) for v in ("improved", "unchanged", "worse", "diverges")},
         "median_param_error": float(np.median(errs)) if errs else float("nan"),
         "max_param_error": float(np.max(errs)) if errs else float("nan"),
         "median_seconds": float(np.median([s.seconds for s in scores])) if scores else float("nan"),
