@@ -27,7 +27,7 @@ import numpy as np
 from furuta_rt.config import RigConfig
 from furuta_rt.diagnose import verify
 from furuta_rt.diagnose.fitting import paired_t
-from furuta_rt.diagnose.select import EquationModel, Spec
+from furuta_rt.diagnose.select import EquationModel, Evaluation, Spec
 from furuta_rt.diagnose.signals import MAX_SIGMA
 from furuta_rt.diagnose.stickslip import WindowStage
 from furuta_rt.model.effects import Effects
@@ -100,7 +100,9 @@ class Gate:
                  stages: list[tuple[WindowStage, int]], notes: list[str]) -> None:
         self.ctx, self.ems, self.opts, self.plan, self.stages, self.notes = ctx, ems, opts, plan, stages, notes
         self._train: dict[tuple[str, int], EquationModel | None] = {}
+        self._profiled: dict[tuple[str, int, str], Evaluation] = {}
         self._noted: set[str] = set()
+        self.specs: dict[str, Spec] = {}  # each equation's current model (set by run, refitted when an effect goes)
 
     def train_model(self, eq: str, fold: int) -> EquationModel | None:
         """The equation's rows outside the fold (None: too few, the all-data fit is used)."""
@@ -115,17 +117,35 @@ class Gate:
             self._train[key] = em if ok else None
         return self._train[key]
 
+    def fold_fit(self, eq: str, spec: Spec, fold: int) -> Evaluation:
+        """``spec`` fitted on the rows outside the fold: the current model with its nonlinear parameters re-profiled
+        (engine.refit), a model with effects left out of it by least squares at the current model's profiled values
+        (the leave-one-out models of the gate cost one linear fit each)."""
+        from furuta_rt.diagnose.engine import refit
+
+        em = self.train_model(eq, fold) or self.ems[eq]
+        full = self.specs.get(eq, spec)
+        key = (eq, fold, repr(full))
+        if key not in self._profiled:
+            self._profiled[key] = refit(em, full)
+        base = self._profiled[key]
+        if spec == full:
+            return base
+        derived = base.spec
+        for name in set(full.effects) - set(spec.effects):
+            derived = derived.without(name)
+        return em.evaluate(derived)
+
     def fold_params(self, found: list[Found], specs: dict[str, Spec], fold: int) -> dict[str, dict[str, float]]:
         """The found effects' parameters for predicting one fold's windows."""
-        from furuta_rt.diagnose.engine import LUGRE_CONTAINS, _within_bounds, refit
+        from furuta_rt.diagnose.engine import LUGRE_CONTAINS, _within_bounds
 
         out: dict[str, dict[str, float]] = {}
         names = {f.name for f in found}
         for eq, spec in specs.items():
             if not spec.effects or not any(f.source == ID and f.equation == eq for f in found):
                 continue
-            em = self.train_model(eq, fold)
-            ev = refit(em, spec) if em is not None else refit(self.ems[eq], spec)
+            ev = self.fold_fit(eq, spec, fold)
             for n in ev.spec.effects:
                 if n in names and not (n in LUGRE_CONTAINS and "arm_lugre" in ev.spec.effects):
                     out[n] = _within_bounds(n, ev.params[n])
@@ -185,6 +205,7 @@ def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResu
               if s is not None and s.added]
     gate = Gate(ctx, ems, opts, plan, stages, notes)
     specs = {eq: r.selected.spec for eq, r in res.items()}
+    gate.specs = specs
     nominal, _ = gate.predict([], specs)
     if not plan.starts:
         notes.append("the recording has no window to predict; the prediction gate and metric are skipped")
