@@ -69,9 +69,12 @@ def text(d: Diagnosis) -> list[str]:
         lines.append(f"told apart: {a['effects'][0]} rather than {a['effects'][1]}: {a['reason']}")
     lines.append(f"located: {d.located}")
     f = d.fit
-    lines.append(f"fit ({f['metric']}, {f['windows']} windows of {f['horizon_s']:.2f} s from t = {f['held_out_from_s']:.1f} s): "
+    lines.append(f"fit: {f['verdict']} ({f['metric']}; {f['windows']} windows of {f['horizon_s']:.2f} s, paired t = "
+                 f"{f['paired_t']:.1f}, diverged {f['nominal_diverged']} → {f['augmented_diverged']}): "
                  f"nominal {f['nominal']:.4f} (θ {f['nominal_theta']:.4f}, φ {f['nominal_phi']:.4f}) → augmented "
                  f"{f['augmented']:.4f} (θ {f['augmented_theta']:.4f}, φ {f['augmented_phi']:.4f})")
+    for e in d.not_predictive:
+        lines.append(f"not predictive (not reported as found): {e['name']} ({fmt_params(e['params'])}): {e['reason']}")
     if d.closed_loop:
         lines.append("closed-loop re-simulation (std θ, std φ, std u, φ limit cycle amplitude / period):")
         for k in ("data", "nominal", "augmented"):
