@@ -107,30 +107,30 @@ class ResidualSindyResult:
     seconds: float
 
 
-def fit_sindy_residual(rec: Recording, rig: RigConfig, threshold: float = 0.2) -> ResidualSindyResult:
+def fit_sindy_residual(rec: Recording, rig: RigConfig, threshold: float = 0.2, sigma: float = 0.02) -> ResidualSindyResult:
     """Discrepancy modelling (Kaheman, Kaiser, Strom, Kutz & Brunton 2019): SINDy on what the nominal model leaves
     out. The residual is eq. 4's inverse dynamics (FurutaPlant.inverse_dynamics: the joint torques the measured
-    motion needs) minus the nominal torques (the rig's actuator on the command shifted by the configured latency),
+    motion needs) minus the nominal torques (the rig's actuator on the command held over its configured latency),
     regressed with the same candidates and thresholding as ``fit_sindy`` (degree-1 polynomials in θ, θ̇, φ, φ̇, u
-    and sgn of each). Its coefficients are torques, so they read directly as effects (an arm inertia error would
-    need φ̈ among the candidates: like ``fit_sindy``, it has none)."""
+    and sgn of each), each equation scaled to unit rms. To isolate the regression from the signal processing it
+    gets the states ``diagnose`` uses (furuta_rt.diagnose.signals: θ through the inverse of the rig's θ path,
+    derivatives and the held command through one Gaussian kernel of width ``sigma``). Its coefficients are
+    torques, so they read directly as effects (an arm inertia error would need φ̈ among the candidates: like
+    ``fit_sindy``, it has none; nor has it a delay)."""
     import time
 
     import pysindy as ps
 
+    from furuta_rt.diagnose.signals import prepare
     from furuta_rt.model.rig import RigModel
 
     t0 = time.perf_counter()
-    dt = float(np.median(np.diff(rec.t)))
-    diff = ps.SmoothedFiniteDifference(smoother_kws={"window_length": 21, "polyorder": 3})
-    th = np.asarray(rec.theta, float)
-    thd = np.asarray(rec.theta_dot, float) if rec.theta_dot is not None else np.asarray(diff(th, t=dt)).ravel()
-    ph = np.asarray(rec.phi, float)
-    phd = np.asarray(diff(ph, t=dt)).ravel()
-    thdd = np.asarray(diff(thd, t=dt)).ravel()
-    phdd = np.asarray(diff(phd, t=dt)).ravel()
-    D = rig.control.command_delay_ticks
-    u = np.concatenate([np.zeros(D), np.asarray(rec.u, float)[: len(rec.u) - D]])
+    prep = prepare(rec, rig)
+    st = prep.states(sigma)
+    keep = prep.valid
+    th, thd, thdd = st.theta[keep], st.theta_dot[keep], st.theta_ddot[keep]
+    ph, phd, phdd = st.phi[keep], st.phi_dot[keep], st.phi_ddot[keep]
+    u = st.held(prep.u, prep.command_lag)[keep]
     model = RigModel.from_config(rig)
     terms = np.array([model.actuator.torque_terms(float(v)) for v in u])
     tau_arm_nominal = terms[:, 0] - terms[:, 1] * phd
@@ -145,7 +145,7 @@ def fit_sindy_residual(rec: Recording, rig: RigConfig, threshold: float = 0.2) -
     sindy = ps.SINDy(feature_library=lib, optimizer=ps.STLSQ(threshold=threshold, normalize_columns=True))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sindy.fit(x, t=dt, x_dot=residual, u=u[:, None], feature_names=[*NAMES, "u"])
+        sindy.fit(x, t=prep.dt, x_dot=residual, u=u[:, None], feature_names=[*NAMES, "u"])
     names = sindy.get_feature_names()
     coef = sindy.coefficients() * scale[:, None]
     eqs = {"pendulum": dict(zip(names, coef[1], strict=True)), "arm": dict(zip(names, coef[3], strict=True))}
