@@ -47,11 +47,27 @@ def _params(params: dict[str, Any], se: dict[str, Any] | None = None) -> str:
     return ", ".join(out) or "—"
 
 
-def _table(head: list[str], rows: list[list[str]]) -> str:
-    """A table of already-escaped cells."""
-    h = "".join(f"<th>{c}</th>" for c in head)
+def _value(c: dict[str, Any]) -> str:
+    v = c.get("value")
+    if isinstance(v, str):  # already worded with its uncertainty
+        return _e(v)
+    return f"{_num(v)} ± {_num(c.get('se'), 2)}"
+
+
+def _removes(c: dict[str, Any]) -> str:
+    r = c.get("removes")
+    if isinstance(r, dict):
+        parts = ", ".join(f"{_e(k)} {_pct(v)}" for k, v in r.items())
+        total = c.get("removes_total")
+        return parts + (f" (together {_pct(total)})" if isinstance(total, int | float) else "")
+    return _pct(r)
+
+
+def _table(head: list[str] | None, rows: list[list[str]]) -> str:
+    """A table of already-escaped cells (``head`` None: no header row)."""
+    h = "<tr>" + "".join(f"<th>{c}</th>" for c in head) + "</tr>" if head else ""
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rows)
-    return f"<table><tr>{h}</tr>{body}</table>"
+    return f"<table>{h}{body}</table>"
 
 
 def _verdict(v: object) -> str:
@@ -70,7 +86,7 @@ def _equation(name: str, eq: dict[str, Any], data: dict[str, Any]) -> str:
         rows.append(["noise floor (what the sensors alone explain)", _pct(eq["noise_floor"])])
     rows.append(["held-out error reduction of the effects found", _pct(eq.get("cv_gain"))])
     rows.append(["usable samples", _num(eq.get("rows"))])
-    out.append("<p class=muted>residuals: rms relative to the equation's torque scale</p>" + _table(["", ""], rows))
+    out.append("<p class=muted>residuals: rms relative to the equation's torque scale</p>" + _table(None, rows))
     corr = {k: v for k, v in (eq.get("correlations") or {}).items() if k != "1" and isinstance(v, int | float)}
     top = sorted(corr.items(), key=lambda kv: -abs(kv[1]))[:3]
     where = []
@@ -103,16 +119,20 @@ def _equation(name: str, eq: dict[str, Any], data: dict[str, Any]) -> str:
         out.append("<p><b>Look-alikes:</b></p><ul>" + "".join(items) + "</ul>")
     un = eq.get("unexplained")
     if isinstance(un, dict):
-        text = [f"<p><b>Unexplained:</b> {_pct(un.get('share'))} of the torque scale is left."]
-        for w in un.get("where") or []:
-            text.append(f"<br>{_e(w)}")
+        text = [f"<p><b>Unexplained:</b> {_pct(un.get('share'))} of the torque scale is left"
+                + (f" (the effects found removed {_pct(un['removed_by_effects'])} of the nominal residual)"
+                   if isinstance(un.get("removed_by_effects"), int | float) else "") + "."]
+        text += [f"<br>{_e(w)}" for w in un.get("where") or []]
+        sig = un.get("signature") or {}
+        if isinstance(sig.get("peak_hz"), int | float):
+            band = sig.get("band_hz") or []
+            text.append(f"<br>its spectrum peaks at {sig['peak_hz']:.2g} Hz"
+                        + (f" (band {band[0]:.2g}–{band[1]:.2g} Hz)" if len(band) == 2 else ""))
+        text.append("</p>")
         causes = un.get("possible_causes") or []
         if causes:
-            text.append("</p>" + _table(["possible cause", "value ± se", "removes (of what is left)"], [
-                [_e(c.get("cause", "")), f"{_num(c.get('value'))} ± {_num(c.get('se'), 2)}", _pct(c.get("removes"))]
-                for c in causes]))
-        else:
-            text.append("</p>")
+            text.append(_table(["possible cause (outside the library)", "value", "removes (of what is left)"],
+                               [[_e(c.get("cause", "")), _value(c), _removes(c)] for c in causes]))
         out.append("".join(text))
     return "\n".join(out)
 
@@ -134,8 +154,16 @@ def html_page(data: dict[str, Any], images: list[str], lines: list[str]) -> str:
     details = data.get("fit_details") or {}
     if fit:
         body.append(f"<h2>Held-out prediction {_verdict(fit.get('verdict'))}</h2>")
-        windows = (f"{_num(details.get('windows'))} windows of {_num(details.get('horizon_s'), 3)} s from "
-                   f"t = {_num(details.get('held_out_from_s'), 3)} s; parameters fitted before")
+        times = fit.get("window_times_s") or []
+        span = (f"at t = {_num(min(times), 3)}–{_num(max(times), 3)} s" if times else
+                f"from t = {_num(details.get('held_out_from_s'), 3)} s")
+        windows = (f"{_num(fit.get('windows', details.get('windows')))} windows of "
+                   f"{_num(fit.get('horizon_s', details.get('horizon_s')), 3)} s {span}")
+        for key, what in (("nominal_diverged", "nominal diverged in"), ("augmented_diverged", "augmented diverged in")):
+            if fit.get(key):
+                windows += f"; {what} {_num(fit[key])}"
+        if isinstance(fit.get("paired_t"), int | float):
+            windows += f"; paired t = {fit['paired_t']:.1f}"
         body.append(f"<p>{_e(fit.get('metric', ''))}: nominal model {_num(fit.get('nominal'))}, with the effects found "
                     f"{_num(fit.get('augmented'))} ({windows}).</p>")
     if "prediction.png" in images:

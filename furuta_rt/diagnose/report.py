@@ -144,27 +144,28 @@ def figures(d: Diagnosis, out: Path, prefix: str = "") -> list[Path]:
     pred = d.prediction
     starts = pred.get("starts", [])
     if starts:
-        fig, ax = _figure(2, 1, (9, 5.5))
+        chosen = starts[:: max(1, len(starts) // 4)][:4]
+        fig, ax = _figure(2, len(chosen), (10, 5.5))  # one column per window (windows are short and far apart)
         rig = ctx.rig
         models = (RigModel.from_config(quiet(rig)), RigModel.from_config(quiet(rig), pred["augmented"]))
         h = pred["horizon"]
-        for k in starts[:: max(1, len(starts) // 4)][:4]:
+        for j, k in enumerate(chosen):
             span = slice(k + 1, k + 1 + h)
             tt = t[span]
-            ax[0, 0].plot(tt, ctx.prep.theta_f[span], "k", lw=1)
-            ax[1, 0].plot(tt, ctx.prep.phi[span], "k", lw=1)
-            for model, style in zip(models, ("C3--", "C0"), strict=True):
+            ax[0, j].plot(tt, ctx.prep.theta_f[span], "k", lw=1.2, label="data")
+            ax[1, j].plot(tt, ctx.prep.phi[span], "k", lw=1.2, label="data")
+            for model, style, label in zip(models, ("C3--", "C0"), ("nominal", "augmented"), strict=True):
                 th, ph = simulate_window(model, ctx.prep, ctx.fine, k, h, pred["substep_hz"])
-                ax[0, 0].plot(tt, th, style, lw=1)
-                ax[1, 0].plot(tt, ph, style, lw=1)
-        ax[0, 0].set_ylabel("θ_f, measured pendulum angle (rad)", fontsize=8)
-        ax[1, 0].set_ylabel("φ, arm angle (rad)", fontsize=8)
-        ax[0, 0].set_xlabel("t (s)")
-        ax[1, 0].set_xlabel("t (s)")
-        ax[0, 0].legend(["data", "nominal", "augmented"], fontsize=7)
-        title = (f"held-out prediction windows of {h * ctx.prep.dt:.2f} s, NRMSE: nominal {d.fit['nominal']:.3f}, "
-                 f"augmented {d.fit['augmented']:.3f}")
-        ax[0, 0].set_title(title, fontsize=9)
+                ax[0, j].plot(tt, th, style, lw=1, label=label)
+                ax[1, j].plot(tt, ph, style, lw=1, label=label)
+            for i in (0, 1):
+                ax[i, j].set_xlabel("t (s)", fontsize=8)
+                ax[i, j].tick_params(labelsize=7)
+        ax[0, 0].set_ylabel("θ_f, pendulum (rad)", fontsize=8)
+        ax[1, 0].set_ylabel("φ, arm (rad)", fontsize=8)
+        ax[0, 0].legend(fontsize=7)
+        fig.suptitle(f"held-out prediction, {len(chosen)} of {len(starts)} windows of {h * ctx.prep.dt:.2f} s; NRMSE over all: "
+                     f"nominal {d.fit['nominal']:.3f}, augmented {d.fit['augmented']:.3f}", fontsize=9)
         paths.append(_save(fig, out / f"{prefix}prediction.png"))
     if d.decay_result is not None:
         paths.append(decay_figure(d.decay_result, out / f"{prefix}decay.png"))
