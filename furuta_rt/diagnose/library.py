@@ -430,8 +430,9 @@ class Candidate:
                 return 0.05 < par["gain"] < 20.0
             case "input_delay":
                 return par["delay"] > 0
-            case "command_latency":  # shorter than the nominal one (a longer one is an input_delay on top of it)
-                return 0.0 <= par["delay"] < nominal_latency(rig)
+            case "command_latency":  # shorter than the nominal one (a longer one is an input_delay on top of it), and
+                # causal: an optimum more than half a tick below 0 is something else that a lead would mimic
+                return -0.5 / rig.control.rate_hz <= par["delay"] < nominal_latency(rig)
             case "theta_offset":
                 return abs(par["offset"]) < 0.3
             case "arm_lugre":
