@@ -210,9 +210,9 @@ def lugre_cases() -> list[Case]:
 
 def outside_cases() -> list[Case]:
     """Recordings whose mismatch is outside the library (issue 13): made on a TRUE rig that differs from the config
-    (pendulum inertia ±20 %, pendulum length ±10 %, a 5 % θ sensor scale error in the loop), diagnosed against the
-    config. Right answer: the equation the change acts in is `partly_explained` or `unexplained`, no effect is
-    named, and the first possible cause is the change (``OUTSIDE_CAUSE``)."""
+    (pendulum inertia ±20 %, pendulum length ±10 %, a 5 % θ sensor scale error in the loop, a compliant rotor–arm
+    coupling), diagnosed against the config. Right answer: the equation the change acts in is `partly_explained` or
+    `unexplained`, no effect is named, and the first possible cause is the change (``OUTSIDE_CAUSE``)."""
     return [
         Case("outside Jp +20%", (), 71, "sine", rig_change=(("plant.Jp", 1.2),)),
         Case("outside Jp -20%", (), 72, "square", rig_change=(("plant.Jp", 0.8),)),
@@ -220,10 +220,14 @@ def outside_cases() -> list[Case]:
         Case("outside l -10%", (), 74, "square", rig_change=(("plant.l", 0.9),)),
         Case("outside theta scale +5%", (), 75, "sine", rig_change=(("sensors.theta_scale", 1.05),)),
         Case("outside Jp +20% (no reference)", (), 76, None, rig_change=(("plant.Jp", 1.2),)),
+        # a motor rotor of 2 % of the arm's inertia on a torsional spring and damper: an 8 Hz arm–rotor mode
+        Case("outside compliant arm coupling", (), 77, "sine", rig_change=(
+            ("coupling.rotor_inertia", 0.001), ("coupling.stiffness", 2.5), ("coupling.damping", 0.005))),
     ]
 
 
-OUTSIDE_CAUSE = {"plant.Jp": "Jp", "plant.l": "l", "sensors.theta_scale": "theta_scale"}  # rig change → cause key
+OUTSIDE_CAUSE = {"plant.Jp": "Jp", "plant.l": "l", "sensors.theta_scale": "theta_scale",  # rig change → cause key
+                 "coupling.stiffness": "mode"}
 
 
 def outside_score(case: Case, diagnosis_json: dict) -> dict:

@@ -8,20 +8,25 @@ accounts for the residual's correlation in time: the blocks, not the samples, ar
     d_b = ms(residual in block b) − K² · ms(noise floor draws in block b),   t = mean(d) / (sd(d)/√B)
 
 and the residual is *within the noise floor* unless t > T_CRIT (one-sided t test at 0.5 % with B − 1 degrees of
-freedom). K = FLOOR_ACCURACY is the accuracy of the floor estimate itself: on the simulator, where the true states
-are known, the Monte Carlo floor is within 25 % (rms) of the true sensor part of the residual on every null case.
+freedom) or at least 14 of the 16 blocks exceed it (a sign test, binomial p = 0.2 %: a large excess that varies
+much between blocks has a small t). K = FLOOR_ACCURACY is the accuracy of the floor estimate itself: on the
+simulator, where the true states are known, the Monte Carlo floor is within 25 % (rms) of the true sensor part of the
+residual on every null case.
 
-Verdicts: ``consistent`` (the nominal residual is within the floor), ``explained`` (it is not, the augmented one
-is), ``partly_explained`` (effects remove at least half of the excess over the floor, significantly, and a
-significant part remains), ``unexplained`` (otherwise), ``not_assessed`` (too few usable rows). A residual whose
-size is within the floor but which follows a possible cause's signature beyond chance (below) is not consistent
-(nor explained): that test is specific, so it sees mismatches smaller than the omnibus size test can.
+Verdicts: ``consistent`` (the nominal residual is within the floor and no effect was selected), ``explained`` (it
+is not, or effects were selected — their own significance test, furuta_rt.diagnose.select, is more specific than the
+size test — and the augmented residual is within the floor), ``partly_explained`` (effects remove at least half of
+the excess over the floor and a significant part remains), ``unexplained`` (otherwise), ``not_assessed`` (too few
+usable rows). A residual whose size is within the floor but which follows a possible cause's signature beyond
+chance (below) is not consistent (nor explained): that test is specific, so it sees mismatches smaller than the
+omnibus size test can.
 
 For a remainder, where it sits (times, regions, the signals it follows, its frequency band) and what outside the
 library could produce it: the remaining residuals of both equations are regressed, jointly, on the sensitivity of
 FurutaPlant.inverse_dynamics to each plant parameter of the rig config, to a θ sensor scale and to the sign of
-each angle (possible causes for the person to check in the rig config; never effects), and a narrow spectral
-peak of the residual that the data does not have points to an unmodelled compliance or mode.
+each angle (possible causes for the person to check in the rig config; never effects); the remainder's spectrum
+against the data's (``signature``) says in which band it sits (a narrow peak the data does not have points to an
+unmodelled compliance or mode).
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ from furuta_rt.model.plant import FurutaPlant
 
 N_BLOCKS = 16
 T_CRIT = 2.95  # one-sided 0.5 % point of Student's t with 15 degrees of freedom
+SIGN_MIN = 14  # of 16 blocks above the floor: one-sided binomial p = 0.2 % under H0 (the sign test)
 FLOOR_ACCURACY = 1.3  # the floor estimate is within this factor (rms) of the true sensor part (see the docstring)
 MIN_ROWS = 200
 PARTLY = 0.5  # effects must remove at least this share of the excess over the floor for `partly_explained`
@@ -85,10 +91,15 @@ class EquationVerdict:
 
 
 def block_t(r: np.ndarray, floor: np.ndarray, n_blocks: int = N_BLOCKS) -> float:
-    """t of mean(ms_b(r) − K²·ms_b(floor)) over contiguous blocks (r: residual on the rows; floor: (draws, rows))."""
+    """t of mean(ms_b(r) − K²·ms_b(floor)) over contiguous blocks (r: residual on the rows; floor: (draws, rows)).
+
+    A large excess that varies much between blocks has a small t, so the sign test backs it: when at least SIGN_MIN
+    of the B blocks exceed the floor (one-sided binomial p < 0.5 % under H0), t is +inf."""
     edges = np.linspace(0, len(r), n_blocks + 1).round().astype(int)
     d = np.array([np.mean(r[a:b] ** 2) - FLOOR_ACCURACY**2 * np.mean(floor[:, a:b] ** 2)
                   for a, b in itertools.pairwise(edges)])
+    if n_blocks == N_BLOCKS and int(np.sum(d > 0)) >= SIGN_MIN:
+        return float("inf")
     sd = float(np.std(d, ddof=1))
     if sd == 0:
         return float(np.sign(d.sum()) * np.inf) if d.any() else 0.0
@@ -123,9 +134,9 @@ def assess(ctx: Context, ems: dict, res: dict, seed: int = 0) -> dict[str, Equat
         excess_nom = v.residual_nominal**2 - v.noise_floor**2
         excess_aug = max(v.residual_augmented**2 - v.noise_floor**2, 0.0)
         removed = 1.0 - excess_aug / excess_nom if excess_nom > 0 else 0.0
-        if t_nom <= T_CRIT:
+        if t_nom <= T_CRIT and not effects:
             v.verdict = "consistent"
-        elif effects and t_aug <= T_CRIT:
+        elif effects and t_aug <= T_CRIT:  # effects selected are significant (select.py) even when the size is not
             v.verdict = "explained"
         elif effects and removed >= PARTLY:
             v.verdict = "partly_explained"
