@@ -424,7 +424,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     prediction: dict = {}
     fit_summary = _prediction_metric(ctx, gated, found, prediction)
     closed = _closed_loop(rec, rig, found, opts, notes) if opts.closed_loop else None
-    verdicts = verdict.assess(ctx, ems, res, opts.seed)
+    verdicts = verdict.assess(ctx, ems, res, opts.seed, found)
     located = verdict.with_verdicts(located, res, verdicts)
     return Diagnosis(
         effects=found, fit=fit_summary, located=located, ambiguities=ambiguities, lookalikes=lookalikes,

@@ -110,14 +110,16 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x**2))) if x.size else float("nan")
 
 
-def assess(ctx: Context, ems: dict, res: dict, seed: int = 0) -> dict[str, EquationVerdict]:
-    """The verdict of each equation from the final ``res`` (engine.EquationResult) and its models ``ems``."""
+def assess(ctx: Context, ems: dict, res: dict, seed: int = 0, found: list | None = None) -> dict[str, EquationVerdict]:
+    """The verdict of each equation from the final ``res`` (engine.EquationResult) and its models ``ems``; ``found``
+    (engine.Found): every effect reported, including those of the window stages and the free decay, which are not
+    in the equation's regression (its augmented residual does not hold them)."""
     out: dict[str, EquationVerdict] = {}
     remaining: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}  # eq → (residual, rows, floor ms)
     for eq, r in res.items():
         em = ems[eq]
         rows = em.row_mask
-        effects = tuple(r.selected.spec.effects)
+        effects = tuple(dict.fromkeys([*r.selected.spec.effects, *(f.name for f in found or [] if f.equation == eq)]))
         if rows.sum() < MIN_ROWS:
             out[eq] = EquationVerdict(eq, "not_assessed", float("nan"), float("nan"), float("nan"),
                                       reason=f"only {int(rows.sum())} usable samples (at least {MIN_ROWS} are needed)",
@@ -125,7 +127,7 @@ def assess(ctx: Context, ems: dict, res: dict, seed: int = 0) -> dict[str, Equat
             continue
         scale = torque_scale(ctx, eq, rows)
         y_nom = em.target(em.spec0())
-        y_aug = em.residual(r.selected.spec, r.selected.fit.coef) if effects else y_nom
+        y_aug = em.residual(r.selected.spec, r.selected.fit.coef) if r.selected.spec.effects else y_nom
         floor = noise.draws(ctx, eq, seed=seed)[:, rows]
         t_nom, t_aug = block_t(y_nom[rows], floor), block_t(y_aug[rows], floor)
         ms_floor = float(np.mean(floor**2))
