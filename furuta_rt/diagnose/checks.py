@@ -133,10 +133,8 @@ def conventions(prep: Prepared, rig: RigConfig) -> list[str]:
     st = prep.states(SIGMA)
     rows = rows & (np.arange(prep.n) % max(1, round(ROW_STEP / prep.dt)) == 0)  # the σ = 40 ms signals are smooth
     rest = _rest_in_degrees(st.theta[rows], st.theta_dot[rows])
-    if rest is not None:
-        raise UserError(f"θ appears to be in degrees: the pendulum rests at θ = {rest:+.1f}, hanging in degrees "
-                        f"(no rest angle in radians); {_fix('theta', DEG)}")
-    if not (_moves(st.theta[rows], prep.phi_lsb, 2) or _moves(st.phi[rows], prep.phi_lsb, 2)):
+    moves = _moves(st.theta[rows], prep.phi_lsb, 2) or _moves(st.phi[rows], prep.phi_lsb, 2)
+    if not moves and rest is None:
         return notes  # nothing moves: nothing to tell
     scores: dict[Hypothesis, Score] = {}
     arm_torque: dict[Hypothesis, np.ndarray] = {}
@@ -145,6 +143,15 @@ def conventions(prep: Prepared, rig: RigConfig) -> list[str]:
             for sign in (1.0, -1.0):
                 h = Hypothesis(ts, ps, sign)
                 scores[h], arm_torque[h] = _score(h, st, model.plant, model.theta_offset, rows)
+    if rest is not None:  # θ in degrees; φ too if the pendulum row then balances decisively better with φ × π/180
+        with_phi = min(scores[Hypothesis(DEG, DEG, 1.0)], scores[Hypothesis(DEG, DEG, -1.0)], key=lambda s: s.relative)
+        without = min(scores[Hypothesis(DEG, 1.0, 1.0)], scores[Hypothesis(DEG, 1.0, -1.0)], key=lambda s: s.relative)
+        both = moves and with_phi.relative <= STRONG * without.relative and with_phi.relative <= BALANCED
+        also = (f", and with θ × π/180 eq. 4's pendulum row balances only with φ × π/180 too (residual "
+                f"{100 * with_phi.relative:.0f} % of its torque scale against {100 * without.relative:.0f} %)") if both else ""
+        fix = _fix("theta", DEG) + (f"; {_fix('phi', DEG, short=True)}" if both else "")
+        raise UserError(f"{'θ and φ appear' if both else 'θ appears'} to be in degrees: the pendulum rests at "
+                        f"θ = {rest:+.1f}, hanging in degrees (no rest angle in radians){also}; {fix}")
     here = min(scores[AS_READ], scores[Hypothesis(theta_sign=-1.0)], key=lambda s: s.relative)  # radians, either sign
     least = min(s.relative for s in scores.values())  # of the near-best, the one that changes fewest units
     best = min((s for s in scores.values() if s.relative <= TIE * least), key=lambda s: (len(s.hypothesis.units), s.relative))
@@ -181,9 +188,15 @@ def conventions(prep: Prepared, rig: RigConfig) -> list[str]:
         why = (f"{arm_text}, not decisive" if gain is not None else "the command does not vary or the arm does not move")
         raise UserError(f"the sign of θ or of φ appears reversed relative to the rig: {pend_text} (the arm row cannot "
                         f"tell which: {why}); {_fix('theta', -1)} or {_fix('phi', -1, short=True)}")
-    if arm_reversed:
+    pend_as_read = same.relative <= STRONG * flipped.relative and same.relative <= BALANCED  # θ, φ agree (decisively)
+    if arm_reversed and pend_as_read:
         raise UserError(f"the sign of u appears reversed relative to the rig (or θ and φ both are): {arm_text}, while the "
-                        f"pendulum row balances as read; {_fix('u', -1)}")
+                        f"pendulum row balances as read (residual {100 * same.relative:.0f} % of its torque scale, "
+                        f"{100 * flipped.relative:.0f} % with θ reversed); {_fix('u', -1)}")
+    if arm_reversed:
+        raise UserError(f"the sign of u or of φ appears reversed relative to the rig: {arm_text}, and the pendulum row "
+                        f"cannot tell which (residual {100 * same.relative:.0f} % of its torque scale as read, "
+                        f"{100 * flipped.relative:.0f} % with θ reversed); {_fix('u', -1)} or {_fix('phi', -1, short=True)}")
     if gain is not None and gain[0] < 0 and gain[1] < -2:
         notes.append(f"{arm_text}: a negative gain, not decisive — check the sign of u and φ if the diagnosis looks wrong")
     return notes
