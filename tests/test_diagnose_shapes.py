@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from furuta_rt.config import load_rig
 from furuta_rt.diagnose import Options, diagnose, suite
 from furuta_rt.errors import UserError
-from furuta_rt.io.csv import write_csv
+from furuta_rt.io.csv import read_csv, write_csv
 from furuta_rt.recording import Recording
 
 FAST = Options(closed_loop=False, max_windows=8)
@@ -138,6 +138,16 @@ def test_a_reversed_column_is_diagnosed_once_flipped_back(base, tmp_path) -> Non
     assert [e["name"] for e in json.loads(out)["effects"]] == ["arm_coulomb"]
     code, out, _ = cli(str(path), "--json", "-", "--no-closed-loop", "--skip-convention-check")
     assert code == 0 and "arm_coulomb" not in [e["name"] for e in json.loads(out)["effects"]]
+
+
+def test_empty_and_nan_cells_are_read_as_gaps_only_for_diagnose(tmp_path) -> None:
+    """The CSV reader stays strict (convert, replay); diagnose reads empty / NaN cells and repeated times as gaps."""
+    path = tmp_path / "gaps.csv"
+    path.write_text("t,theta,phi,u\n0,0.1,0,0\n0.002,,0,0\n0.002,nan,0,0\n0.004,0.2,0,0\n")
+    with pytest.raises(UserError, match="not a number"):
+        read_csv(path)
+    rec = read_csv(path, gaps=True)
+    assert np.isnan(rec.theta[1]) and np.isnan(rec.theta[2]) and rec.theta[3] == 0.2 and rec.t[1] == rec.t[2]
 
 
 @st.composite

@@ -128,8 +128,8 @@ def conventions(prep: Prepared, rig: RigConfig) -> list[str]:
     rows = prep.valid
     u = prep.u[rows]
     if float(np.ptp(u)) == 0.0:
-        notes.append(f"the command is constant (u = {u[0] + 0.0:.4g} throughout): the command path (input gain, delay, deadzone, "
-                     "limit) cannot be assessed")
+        notes.append(f"the command is constant where the recording is analysed (u = {u[0] + 0.0:.4g}): the command path "
+                     "(input gain, delay, deadzone, limit) cannot be assessed")
     st = prep.states(SIGMA)
     rows = rows & (np.arange(prep.n) % max(1, round(ROW_STEP / prep.dt)) == 0)  # the σ = 40 ms signals are smooth
     rest = _rest_in_degrees(st.theta[rows], st.theta_dot[rows])
