@@ -83,6 +83,9 @@ def test_arm_bias_is_found_in_the_arm_equation_not_as_a_theta_offset(thesis_rig)
     assert found["arm_bias"]["tau"] == pytest.approx(0.03, rel=0.05)
     told = [a for a in d.lookalikes if set(a["effects"]) == {"arm_bias", "theta_offset"}]
     assert told and told[0]["reported"] == "arm_bias"
+    # nothing else came within the bias's uncertainty at its selection step (a spring's k·φ0 matched 99.7 % of the
+    # nominal residual too, but left a clearly larger held-out error)
+    assert d.models["arm"].rivals("arm_bias", d.equations["arm"].selected.spec) == []
 
 
 def test_a_command_acting_one_tick_sooner_is_measured_as_the_latency_alone(thesis_rig) -> None:

@@ -225,7 +225,7 @@ def check_lookalikes(
     selected = {n: eq for eq, r in res.items() for n in r.selected.spec.effects}
     for name, eq in selected.items():
         r = res[eq]
-        for other in CANDIDATES[name].lookalikes:
+        for other in dict.fromkeys((*CANDIDATES[name].lookalikes, *ems[eq].rivals(name, r.selected.spec))):
             pair = frozenset({name, other})
             if other in selected or any(set(a["effects"]) == pair for a in ambiguous + apart):
                 continue

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from furuta_rt.diagnose.fitting import Blocks, Fit, Stats, fit, fit_profiled
+from furuta_rt.diagnose.fitting import Blocks, Fit, Stats, fit, fit_profiled, paired_t
 from furuta_rt.diagnose.library import ARM, CANDIDATES, Candidate, Context, InputPath
 
 
@@ -94,6 +94,8 @@ class EquationModel:
         self.blocks = Blocks.split(mask, thresholds.n_blocks)
         self.n_rows = len(self.blocks.rows)
         self.corr_len = ctx.states(equation).filt.sigma * 2.5 / ctx.prep.dt  # samples per independent residual
+        self._step_evals: dict[int, dict[str, Evaluation]] = {}  # forward step → candidate → its evaluation
+        self._trace: list[dict] = []
 
     def spec0(self) -> Spec:
         """The nominal model of this equation (with the rig's own command path)."""
@@ -258,12 +260,14 @@ class EquationModel:
         if self.n_rows < 20 * self.th.n_blocks:
             return nominal, current, trace
         names = [c.name for c in self.candidates if allowed is None or c.name in allowed]
+        self._trace = trace
         while True:
             best: tuple[float, Evaluation, str] | None = None
             for name in names:
                 if not self.can_add(current.spec, name):
                     continue
                 ev = self.evaluate_with(current.spec, name)
+                self._step_evals.setdefault(len(current.spec.effects), {})[name] = ev
                 gain = (current.cv - ev.cv) / current.cv
                 k = max(1, ev.fit.coef.size - current.fit.coef.size)
                 ok = (
@@ -300,6 +304,25 @@ class EquationModel:
                     changed = True
                     break
         return nominal, current, trace
+
+    def rivals(self, name: str, spec: Spec) -> list[str]:
+        """Candidates that scored within their uncertainty of ``name`` at the forward step that accepted it: admissible,
+        and the held-out errors over the blocks not clearly worse (paired t < RIVAL_T or within RIVAL_GAIN relative),
+        and able to take its place in ``spec``. engine.check_lookalikes tries them beside the library's fixed pairs."""
+        for step, evals in sorted(self._step_evals.items()):
+            won = evals.get(name)
+            if won is None or not any(r["accepted"] and r["candidate"] == name and r["step"] == step for r in self._trace):
+                continue
+            out = []
+            for other, ev in evals.items():
+                if (other == name or not CANDIDATES[other].plausible(ev.params[other], self.ctx.rig)
+                        or not self.can_add(spec.without(name), other)):
+                    continue
+                rel = (ev.cv - won.cv) / won.cv if won.cv else 0.0
+                if rel < RIVAL_GAIN or paired_t(ev.fit.cv_block, won.fit.cv_block) < RIVAL_T:
+                    out.append(other)
+            return out
+        return []
 
     def best_pair(self, current: Evaluation, names: list[str], trace: list[dict]) -> Evaluation | None:
         """Two effects that pay only together (when no single one is accepted): every admissible pair is screened with
@@ -379,5 +402,6 @@ class EquationModel:
         return ev if ok else None
 
 
+RIVAL_T, RIVAL_GAIN = 3.0, 0.01  # as engine.Options.ambiguity_t / ambiguity_gain
 JOINT = ("input_gain", "arm_viscous", "arm_inertia")  # the arm parameters a datasheet most often gets wrong
 PAIRS_REFINED = 3  # the best-screened pairs fitted in full (nonlinear parameters re-profiled)
