@@ -125,3 +125,32 @@ def test_realistic_scoring() -> None:
     s = suite.score_realistic(on_time, {"effects": [{"name": "command_latency", "params": {"delay": 0.004}}],
                                         "ambiguities": [], "fit": fit}, 0.0)
     assert "latency" not in s.detected and s.false == ["command_latency"]
+
+
+def test_fit_steps_recovers_a_known_arm() -> None:
+    """scripts/fit_steps (the separately derived expectation for the real step recordings) on a simulated single
+    step of a macstepien-shaped rig with 7× the torque per volt: its first-order fit returns the true steady speed
+    per volt (the pendulum's swing costs it a few per cent at most)."""
+    import importlib.machinery
+    import importlib.util
+    from pathlib import Path
+
+    from furuta_rt.diagnose.suite_realistic import simulate, true_steady_speed_per_volt
+    from furuta_rt.model.effects import effects_from_assignments
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "fit_steps"
+    loader = importlib.machinery.SourceFileLoader("fit_steps", str(path))
+    spec = importlib.util.spec_from_loader("fit_steps", loader)
+    mod = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    loader.exec_module(mod)
+    rig = load_rig("macstepien")
+    eff = effects_from_assignments(["input_gain.gain=7", "arm_viscous.Fv=0.0117", "arm_inertia.J=0.00036"])
+    rec = simulate(rig, "macstepien", eff, "single_step", 4.0, seed=5)
+    f = mod.fit_step(rec.t, rec.phi, rec.u)
+    assert f["speed_per_volt"] == pytest.approx(true_steady_speed_per_volt(rig, eff), rel=0.03)
+    # its time constant is an apparent one: above β/D (the arm with the pendulum hanging straight), as the pendulum,
+    # flung out at these speeds, adds inertia that a first-order model cannot separate
+    p = rig.lumped()
+    damping = rig.actuator.Kt * rig.actuator.Ke / rig.actuator.R + 0.0117  # type: ignore[operator]
+    beta = p.beta - rig.plant.arm_inertia + 0.00036
+    assert beta / damping < f["time_constant"] < 2.0 * beta / damping
