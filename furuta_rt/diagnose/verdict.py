@@ -122,7 +122,7 @@ def assess(ctx: Context, ems: dict, res: dict, seed: int = 0, found: list | None
         effects = tuple(dict.fromkeys([*r.selected.spec.effects, *(f.name for f in found or [] if f.equation == eq)]))
         if rows.sum() < MIN_ROWS:
             out[eq] = EquationVerdict(eq, "not_assessed", float("nan"), float("nan"), float("nan"),
-                                      reason=f"only {int(rows.sum())} usable samples (at least {MIN_ROWS} are needed)",
+                                      reason=f"{int(rows.sum())} usable samples, at least {MIN_ROWS} needed",
                                       effects=effects)
             continue
         scale = torque_scale(ctx, eq, rows)
