@@ -62,6 +62,7 @@ PLANT_CAUSES: dict[str, tuple[tuple[str, str], ...]] = {
     "lumped": (("alpha", "pendulum inertia α"), ("gamma", "coupling γ"), ("epsilon", "gravity torque ε")),
 }
 LOOKALIKE_MARGIN = 0.05  # a cause removing within this share of the first one's is reported as its look-alike
+Remaining = tuple[np.ndarray, np.ndarray, float, np.ndarray]  # (residual, rows, floor ms, floor draws on the rows)
 STEP = 1e-3  # relative step of the sensitivity columns
 
 
@@ -115,7 +116,7 @@ def assess(ctx: Context, ems: dict, res: dict, seed: int = 0, found: list | None
     (engine.Found): every effect reported, including those of the window stages and the free decay, which are not
     in the equation's regression (its augmented residual does not hold them)."""
     out: dict[str, EquationVerdict] = {}
-    remaining: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}  # eq → (residual, rows, floor ms)
+    remaining: dict[str, Remaining] = {}
     for eq, r in res.items():
         em = ems[eq]
         rows = em.row_mask
@@ -144,7 +145,7 @@ def assess(ctx: Context, ems: dict, res: dict, seed: int = 0, found: list | None
             v.verdict = "partly_explained"
         else:
             v.verdict = "unexplained"
-        remaining[eq] = (y_aug, rows, ms_floor)
+        remaining[eq] = (y_aug, rows, ms_floor, floor)
         out[eq] = v
     causes = possible_causes(ctx, remaining) if remaining else []
     for eq, v in out.items():
@@ -157,7 +158,7 @@ def assess(ctx: Context, ems: dict, res: dict, seed: int = 0, found: list | None
                         f"(t = {abs(mine[0]['coefficient']) / mine[0]['se']:.0f}, removes "
                         f"{100 * mine[0]['removes'][eq]:.0f} % of it)")
         if v.verdict in ("partly_explained", "unexplained"):
-            y_aug, rows, _ = remaining[eq]
+            y_aug, rows, _, _ = remaining[eq]
             v.remainder = locate(ctx, eq, y_aug, rows)
             excess = max(v.residual_augmented**2 - v.noise_floor**2, 0.0)
             excess_nom = v.residual_nominal**2 - v.noise_floor**2
@@ -282,7 +283,7 @@ def cause_columns(ctx: Context, equations: list[str]) -> list[tuple[str, str, Co
     return out
 
 
-def possible_causes(ctx: Context, remaining: dict[str, tuple[np.ndarray, np.ndarray, float]]) -> list[dict]:
+def possible_causes(ctx: Context, remaining: dict[str, Remaining]) -> list[dict]:
     """Each cause fitted alone to the remaining residuals of both equations jointly (each equation weighted by its
     noise floor; the secant columns refitted at the estimate, twice), with a blocked-jackknife standard error over
     time blocks; the significant ones, best first."""
@@ -290,7 +291,7 @@ def possible_causes(ctx: Context, remaining: dict[str, tuple[np.ndarray, np.ndar
     t = ctx.prep.t
     edges = np.linspace(t[0], t[-1], N_BLOCKS + 1)
     blocks = {eq: np.clip(np.searchsorted(edges, t[rows], side="right") - 1, 0, N_BLOCKS - 1)
-              for eq, (_, rows, _) in remaining.items()}
+              for eq, (_, rows, _, _) in remaining.items()}
     out = []
     for key, name, columns in cause_columns(ctx, eqs):
         a = 0.0
@@ -298,7 +299,7 @@ def possible_causes(ctx: Context, remaining: dict[str, tuple[np.ndarray, np.ndar
             cols = columns(a)
             sxy, sxx, syy = np.zeros(N_BLOCKS), np.zeros(N_BLOCKS), 0.0
             for eq in eqs:
-                y, rows, ms_floor = remaining[eq]
+                y, rows, ms_floor, _ = remaining[eq]
                 w = 1.0 / max(ms_floor, 1e-300)
                 x, yy = cols[eq][rows], y[rows]
                 sxy += w * np.bincount(blocks[eq], x * yy, N_BLOCKS)
@@ -313,12 +314,13 @@ def possible_causes(ctx: Context, remaining: dict[str, tuple[np.ndarray, np.ndar
             continue
         folds = np.array([(sxy.sum() - sxy[k]) / max(sxx.sum() - sxx[k], 1e-300) for k in range(N_BLOCKS)])
         se = float(np.sqrt((N_BLOCKS - 1) / N_BLOCKS * np.sum((folds - folds.mean()) ** 2)))
+        se = max(se, _null_spread(remaining, cols))
         removes_all = a * a * sxx.sum() / syy if syy > 0 else 0.0
         if abs(a) < CAUSE_T * se or removes_all < CAUSE_REMOVES:
             continue
         removes = {}
         for eq in eqs:
-            y, rows, _ = remaining[eq]
+            y, rows, _, _ = remaining[eq]
             ms = float(np.mean(y[rows] ** 2))
             removes[eq] = max(0.0, 1.0 - float(np.mean((y[rows] - a * cols[eq][rows]) ** 2)) / ms) if ms > 0 else 0.0
         out.append({"cause": name, "key": key, "value": _cause_value(ctx, key, a, se), "coefficient": a, "se": se,
@@ -329,6 +331,23 @@ def possible_causes(ctx: Context, remaining: dict[str, tuple[np.ndarray, np.ndar
     for c in out:  # causes that fit (almost) as well as the first are look-alikes the data cannot tell apart
         c["indistinguishable_from_first"] = bool(c["removes_total"] >= out[0]["removes_total"] - LOOKALIKE_MARGIN)
     return out[:4]
+
+
+def _null_spread(remaining: dict[str, Remaining], cols: dict[str, np.ndarray]) -> float:
+    """The spread of a cause's coefficient on sensor noise alone: the rms of the coefficients fitted to the noise
+    floor's draws (the same weights). The blocked jackknife alone under-states it where the noise has structure
+    (the encoder's ramps in slow motion, sticks): on the simulator's null cases it gave |t| up to 7."""
+    num = den = 0.0
+    coefs = []
+    draws = min(len(d) for _, _, _, d in remaining.values())
+    for m in range(draws):
+        num = den = 0.0
+        for eq, (_, rows, ms_floor, floor) in remaining.items():
+            x, w = cols[eq][rows], 1.0 / max(ms_floor, 1e-300)
+            num += w * float(x @ floor[m])
+            den += w * float(x @ x)
+        coefs.append(num / den if den > 0 else 0.0)
+    return float(np.sqrt(np.mean(np.square(coefs)))) if coefs else 0.0
 
 
 def _cause_value(ctx: Context, key: str, a: float, se: float) -> str:
