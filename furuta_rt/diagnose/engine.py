@@ -49,6 +49,10 @@ EXPERIMENTS: dict[frozenset[str], str] = {
         "a static torque test (a known command with the arm held against a force gauge measures the gain alone) "
         "or a repeat with a known inertia added to the arm"
     ),
+    frozenset({"input_gain", "arm_bias"}): (
+        "a command that changes while the arm moves (several step levels, a sine) or a rest at zero command: on one "
+        "constant step the gain's extra torque and a constant one are the same column; at rest a bias moves the arm"
+    ),
     frozenset({"pendulum_viscous", "pendulum_coulomb"}): (
         "a pendulum free decay from a large angle (viscous damping: exponential envelope; Coulomb: linear)"
     ),
