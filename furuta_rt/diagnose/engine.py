@@ -250,7 +250,7 @@ def check_lookalikes(
                 continue
             alt = ems[eq].evaluate_with(r.selected.spec.without(name), other)
             t = paired_t(alt.fit.cv_block, r.selected.fit.cv_block)
-            plausible = CANDIDATES[other].plausible(alt.params[other], ems[eq].ctx.rig)
+            plausible = CANDIDATES[other].plausible(alt.params[other], ems[eq].ctx.rig, ems[eq].ctx.arm_travel)
             rel = (alt.cv - r.selected.cv) / r.selected.cv
             # told apart: the alternative is clearly worse (by ≥ 1 % and consistently over the blocks, or by ≥ 10 %)
             apart_by_data = rel >= opts.ambiguity_gain and (t >= opts.ambiguity_t or rel >= 10 * opts.ambiguity_gain)
@@ -518,19 +518,29 @@ def _peak_windows(ctx: Context, found: list[Found], ems: dict[str, EquationModel
 
 def _stick_windows(ctx: Context, found: list[Found], ems: dict[str, EquationModel], res: dict[str, EquationResult],
                    opts: Options, only: set[str] | None = None, lugre: bool = True) -> stickslip.WindowStage | None:
-    """The stick–slip stage (furuta_rt.diagnose.stickslip): with Coulomb friction found, the arm's sticks and
-    breakaways decide on a breakaway torque above the sliding level and time the actuator."""
+    """The stick–slip stage (furuta_rt.diagnose.stickslip): the arm's sticks and breakaways decide on a breakaway
+    torque above the sliding level and time the actuator; without Coulomb friction found, on the sliding level too
+    (from the arm regression's provisional fit of it)."""
     current = {**ctx.known, **{f.name: f.params for f in found}}
-    if "arm_coulomb" not in current:
-        return None
+    coulomb = None if "arm_coulomb" in current else _provisional_coulomb(ems[ARM], res[ARM], opts)
     stick = stickslip.assess(ctx.rig, current, ctx.prep, ctx.fine, opts.thresholds,
-                             lambda d: _support(ems[ARM], res[ARM].selected, opts, "delay", d), only=only, lugre=lugre)
+                             lambda d: _support(ems[ARM], res[ARM].selected, opts, "delay", d), only=only, lugre=lugre,
+                             coulomb=coulomb)
     if stick is not None:
         found[:] = [f for f in found if f.name not in stick.replaces]
         for name, params in stick.added.items():
             f = stick.fits[name]
             found.append(Found(name, ARM, params, {f.param: f.se}, f.t, f.gain, "stick windows"))
     return stick
+
+
+def _provisional_coulomb(em: EquationModel, r: EquationResult, opts: Options) -> float | None:
+    """The arm regression's Coulomb level added to its selected model (None when the arm equation has too few rows
+    or the level comes out ≤ 0, or no stick-window stage could use it)."""
+    if em.n_rows < 20 * opts.thresholds.n_blocks or "arm_lugre" in r.selected.spec.effects:
+        return None
+    fc = em.evaluate_with(r.selected.spec, "arm_coulomb").params["arm_coulomb"]["Fc"]
+    return fc if fc > 0 else None
 
 
 PENDULUM_FRICTION = ("pendulum_viscous", "pendulum_coulomb")

@@ -81,9 +81,10 @@ class Context:
     @classmethod
     def build(cls, prep: Prepared, rig: RigConfig, sigma_arm: float, sigma_pend: float, sigma_fine: float) -> Context:
         model = RigModel.from_config(rig)  # the rig with its own [effects]: the nominal model includes them
+        fine = prep.states(sigma_fine)
         return cls(
             prep=prep, rig=rig, plant=model.plant, model=model,
-            arm=prep.states(sigma_arm), pend=prep.states(sigma_pend), fine=prep.states(sigma_fine),
+            arm=prep.states(sigma_arm, fine), pend=prep.states(sigma_pend, fine), fine=fine,
         )
 
     def states(self, equation: str) -> States:
@@ -121,13 +122,34 @@ class Context:
         """The arm inertia J of the nominal model (the rig's own arm_inertia effect, else the config's)."""
         return self.known_value("arm_inertia", "J", self.rig.plant.arm_inertia)
 
-    def inverse_dynamics(self, equation: str, plant: FurutaPlant | None = None, theta_shift: float = 0.0) -> np.ndarray:
-        """ID of eq. 4 on the filtered states, θ corrected by the rig's known sensor offset (and ``theta_shift``)."""
+    def inverse_dynamics(self, equation: str, plant: FurutaPlant | None = None, theta_shift: float = 0.0,
+                         phi_ddot: bool = True) -> np.ndarray:
+        """K * ID of eq. 4 evaluated on the lightly smoothed states (signals.States: = C * ID of the true states at
+        any amplitude), θ corrected by the rig's known sensor offset (and ``theta_shift``); without the φ̈ term
+        when not ``phi_ddot``."""
         s = self.states(equation)
-        tp, ta = (plant or self.plant).inverse_dynamics(
-            s.theta - self.model.theta_offset - theta_shift, s.theta_dot, s.phi_dot, s.theta_ddot, s.phi_ddot
-        )
-        return ta if equation == ARM else tp
+        b = s.base
+        pl = plant or self.plant
+        x = [b.theta - self.model.theta_offset - theta_shift, b.theta_dot, b.phi_dot, b.theta_ddot, b.phi_ddot]
+        xd = [b.theta_dot, b.theta_ddot, b.phi_ddot, *self.jerks]
+        if not phi_ddot:
+            x[4], xd[4] = np.zeros_like(b.phi_ddot), np.zeros_like(b.phi_ddot)
+        i = 1 if equation == ARM else 0
+        out = pl.inverse_dynamics(*x)[i]
+        if s.fine is not None:
+            # F*f(x) = f(F*x) + (σ_F²/2)·ẋᵀ∇²f ẋ to second order in F's width: the curvature term from the
+            # second difference of ID along the motion, ±σ_F·ẋ (exactly 0 for the terms linear in the states)
+            h = b.filt.width
+            up = pl.inverse_dynamics(*(a + h * d for a, d in zip(x, xd, strict=True)))[i]
+            down = pl.inverse_dynamics(*(a - h * d for a, d in zip(x, xd, strict=True)))[i]
+            out = 0.5 * (up + down)
+        return s.product(out)
+
+    @cached_property
+    def jerks(self) -> tuple[np.ndarray, np.ndarray]:
+        """(θ⃛, φ⃛) of the lightly smoothed states (for the curvature term of inverse_dynamics)."""
+        b = self.fine
+        return np.gradient(b.theta_ddot, self.prep.dt), np.gradient(b.phi_ddot, self.prep.dt)
 
     @cached_property
     def arm_known_friction(self) -> np.ndarray:
@@ -145,7 +167,7 @@ class Context:
             for k, v in enumerate(f.phi_dot):
                 z, z_dot = fr.lugre.advance(z, float(v), self.prep.dt)
                 torque[k] = fr.lugre.torque(z, z_dot, float(v))
-            out += a.smooth(torque)
+            out += a.product(torque)
         if self.model.spring_k:
             out += -self.model.spring_k * (a.phi - self.model.spring_phi0)
         return out
@@ -168,7 +190,7 @@ class Context:
         if key not in self._columns:
             law = LuGre(sigma0=1.0, sigma1=0.0, Fc=0.0, Fs=1.0, vs=vs)
             v = self.arm_direction * np.abs(self.fine.phi_dot)
-            self._columns[key] = self.arm.smooth(law_on_array(lambda x: -law.steady_state_force(x), v))
+            self._columns[key] = self.arm.product(law_on_array(lambda x: -law.steady_state_force(x), v))
         return self._columns[key]
 
     @cached_property
@@ -180,7 +202,7 @@ class Context:
         if fr.viscous is not None:
             out += fr.viscous.torque(p.theta_dot)
         if fr.dry is not None:
-            out += p.smooth(law_on_array(fr.dry.torque, f.theta_dot))
+            out += p.product(law_on_array(fr.dry.torque, f.theta_dot))
         return out
 
     # ------------------------------------------------------------------ the command torque
@@ -222,17 +244,16 @@ class Context:
     def arm_pendulum_part(self) -> np.ndarray:
         """ID_arm with φ̈ = 0: the pendulum's reaction γ cos θ θ̈ and the velocity terms of eq. 4's arm row (the part
         an input gain would scale and an arm-inertia change would not)."""
-        s = self.arm
-        return self.plant.inverse_dynamics(s.theta, s.theta_dot, s.phi_dot, s.theta_ddot, np.zeros_like(s.theta))[1]
+        return self.inverse_dynamics(ARM, phi_ddot=False)
 
     @cached_property
     def arm_m22(self) -> np.ndarray:
-        """M22(θ) of eq. 4, the arm's inertia as the arm equation sees it (from inverse_dynamics)."""
-        s = self.arm
-        one, zero = np.ones_like(s.theta), np.zeros_like(s.theta)
-        return self.plant.inverse_dynamics(s.theta, zero, zero, zero, one)[1] - self.plant.inverse_dynamics(
-            s.theta, zero, zero, zero, zero
-        )[1]
+        """K * M22(θ) of eq. 4, the arm's inertia as the arm equation sees it (from inverse_dynamics, on the states the
+        nonlinear terms are evaluated on)."""
+        th = self.arm.base.theta - self.model.theta_offset
+        one, zero = np.ones_like(th), np.zeros_like(th)
+        m22 = self.plant.inverse_dynamics(th, zero, zero, zero, one)[1]
+        return self.arm.product(m22 - self.plant.inverse_dynamics(th, zero, zero, zero, zero)[1])
 
     def arm_weight(self, d_inertia: float) -> np.ndarray | float:
         """Residual weight M22_nominal / M22_model: the arm residual's noise is the encoder's φ̈ error times
@@ -296,6 +317,12 @@ class Context:
                 out[mid:b] = step[j + 1]
         out[idx[-1] + 1 :] = step[-1]
         return out
+
+    @cached_property
+    def arm_travel(self) -> tuple[float, float]:
+        """(lowest, highest) arm angle over the usable part of the recording (φ as signals.canonical_angles put it)."""
+        phi = self.prep.phi[self.prep.valid]
+        return float(np.min(phi)), float(np.max(phi))
 
     @cached_property
     def arm_rows(self) -> np.ndarray:
@@ -373,7 +400,7 @@ class Candidate:
             case "pendulum_viscous":
                 return Viscous(1.0).torque(p.theta_dot)[:, None]
             case "pendulum_coulomb":
-                return p.smooth(law_on_array(Coulomb(1.0, PENDULUM_COULOMB_EPSILON).torque, f.theta_dot))[:, None]
+                return p.product(law_on_array(Coulomb(1.0, PENDULUM_COULOMB_EPSILON).torque, f.theta_dot))[:, None]
             case "theta_offset":
                 h = 1e-4
                 up, down = ctx.inverse_dynamics(PEND, theta_shift=-h), ctx.inverse_dynamics(PEND, theta_shift=h)
@@ -417,13 +444,18 @@ class Candidate:
                 return {"limit": float((path.limit or 0.0) * gain)}
         raise KeyError(self.name)
 
-    def plausible(self, par: dict[str, float], rig: RigConfig) -> bool:
-        """Physically admissible values (friction opposes motion, springs restore, inertia positive)."""
+    def plausible(self, par: dict[str, float], rig: RigConfig, travel: tuple[float, float] | None = None) -> bool:
+        """Physically admissible values (friction opposes motion, springs restore, inertia positive). With the arm's
+        ``travel`` (Context.arm_travel): a spring only on an arm whose travel allows a cable (less than a turn),
+        centred inside that travel."""
         match self.name:
             case "arm_coulomb" | "arm_viscous" | "pendulum_viscous" | "pendulum_coulomb":
                 return next(iter(par.values())) > 0
             case "arm_spring":
-                return par["k"] > 0 and abs(par["phi0"]) < 2 * np.pi
+                if travel is None:
+                    return par["k"] > 0 and abs(par["phi0"]) < 2 * np.pi
+                lo, hi = travel
+                return par["k"] > 0 and hi - lo < MAX_SPRING_TRAVEL and lo <= par["phi0"] <= hi
             case "arm_inertia":
                 return par["J"] > 0.05 * rig.plant.arm_inertia
             case "input_gain":
@@ -449,6 +481,7 @@ def nominal_latency(rig: RigConfig) -> float:
     return rig.control.command_delay_ticks / rig.control.rate_hz + (e.input_delay.delay if e.input_delay else 0.0)
 
 
+MAX_SPRING_TRAVEL = 2 * np.pi  # rad: an arm that turns a whole revolution cannot be tied by a cable
 INERTIA_STEP = 1e-3  # kg m², for the derivative of ID with respect to J (ID is linear in J: exact)
 
 CANDIDATES: dict[str, Candidate] = {

@@ -250,7 +250,7 @@ class EquationModel:
             # the whole command path's timing: a latency half a tick off already costs ~5 % of a commanded arm's residual;
             # smaller gains came from other misfits (2 % in a model with a gain standing in for an inertia change)
             return False
-        return CANDIDATES[name].plausible(ev.params[name], self.ctx.rig) and significant
+        return CANDIDATES[name].plausible(ev.params[name], self.ctx.rig, self.ctx.arm_travel) and significant
 
     def select(self, allowed: set[str] | None = None) -> tuple[Evaluation, Evaluation, list[dict]]:
         """(nominal evaluation, selected evaluation, trace of the steps)."""

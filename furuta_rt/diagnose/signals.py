@@ -1,11 +1,21 @@
 """Signals for the diagnosis: the rig's states reconstructed from a recording, all seen through ONE
 smoothing filter so that both sides of eq. 4 are filtered alike.
 
-Every signal is convolved with the same Gaussian G_σ (and its derivatives G', G'', G'''), so
-G*φ̈ = G''*φ exactly and the applied torque is G*τ. The inverse-dynamics residual of eq. 4 computed
-from the filtered states is then the filtered residual of the true states (exactly for the terms that
-are linear in the states — M(θ) q̈ near upright, gravity, the input — and to second order for the
-rest).
+Every signal is convolved with the same kernel C (and its derivatives C', C'', C'''), so C*φ̈ = C''*φ
+exactly and the applied torque is C*τ. C = K∘F: the equation's wide Gaussian K (30–50 ms, it removes
+the encoder's quantisation noise) composed with a narrow one F (5 ms). The terms of eq. 4 that are
+nonlinear in the states (M(θ) q̈, the Coriolis/centrifugal terms, gravity ε sin θ) are evaluated on the
+lightly smoothed states F*x and the products filtered by K: K*f(F*x) = C*f(x) up to F's own small error
+(of order σ_F²·ẋ²·f''/2), at any amplitude. Evaluated on the widely smoothed states instead,
+f(C*x) ≠ C*f(x) once θ turns by more than a few degrees within the kernel (a swing-up): that biased
+the inertias and invented springs. Terms linear in the states, the held command and the friction laws
+evaluated on the instantaneous motion (encoder counts) are filtered by C directly, so every term of
+eq. 4 is seen through the same C. F's noise (the encoder's quantisation through F's derivatives) enters
+the products linearly, or as the square of a small velocity error, and is removed by K.
+
+Angles (`canonical_angles`): θ is unwrapped and shifted by whole turns to a canonical range, φ by whole
+turns so that the middle of its travel lies within ±π: the diagnosis does not depend on the encoder's
+absolute turn count or on where a pendulum angle wraps.
 
 Measurement path (thesis section 3.3, appendix B): θ_f = H θ with H = a0/(s² + a1 s + a0), so
 
@@ -46,6 +56,13 @@ class GaussianFilter:
     kernels: tuple[np.ndarray, ...] = field(repr=False)
 
     @classmethod
+    def composed(cls, outer: GaussianFilter, inner: GaussianFilter) -> GaussianFilter:
+        """outer∘inner: the kernel K*F (a Gaussian of width √(σ_K² + σ_F²) on the grid), the derivatives those
+        of ``inner`` smoothed by ``outer`` (apply(x, k) = K*(F^(k)*x) exactly)."""
+        return cls(math.hypot(outer.sigma, inner.sigma), outer.dt,
+                   tuple(np.convolve(outer.kernels[0], k) for k in inner.kernels))
+
+    @classmethod
     def build(cls, sigma: float, dt: float) -> GaussianFilter:
         half = math.ceil(4.5 * sigma / dt)
         tau = np.arange(-half, half + 1) * dt
@@ -58,6 +75,13 @@ class GaussianFilter:
             np.array([1.0, -2.0, 0.0, 2.0, -1.0]) / (2 * dt**3),
         )
         return cls(sigma, dt, tuple(np.convolve(g, s) for s in stencils))
+
+    @property
+    def width(self) -> float:
+        """√(second moment) of the smoothing kernel on the grid, s (≈ σ)."""
+        w = self.weights
+        tau = (np.arange(len(w)) - self.half) * self.dt
+        return float(np.sqrt(np.sum(w * tau**2)))
 
     @property
     def weights(self) -> np.ndarray:
@@ -111,7 +135,11 @@ class GaussianFilter:
 
 @dataclass
 class States:
-    """Filtered states and accelerations at one filter width (arrays on the recording's grid)."""
+    """Filtered states and accelerations at one filter width (arrays on the recording's grid).
+
+    With ``fine`` (the states seen through a narrow kernel F) these are seen through C = K∘F and ``outer``
+    is K: a nonlinear function of the states is evaluated on ``base`` (= ``fine``) and filtered by
+    ``product`` (K); a function of the instantaneous motion (encoder counts) by ``smooth`` (C)."""
 
     theta: np.ndarray
     theta_dot: np.ndarray
@@ -120,12 +148,24 @@ class States:
     phi_dot: np.ndarray
     phi_ddot: np.ndarray
     filt: GaussianFilter
+    outer: GaussianFilter | None = None
+    fine: States | None = None
+
+    @property
+    def base(self) -> States:
+        """The states a nonlinear term is evaluated on (``fine``, or these when there is none)."""
+        return self.fine if self.fine is not None else self
 
     def held(self, v: np.ndarray, lag: float) -> np.ndarray:
         return self.filt.apply_held(v, lag)
 
     def smooth(self, x: np.ndarray) -> np.ndarray:
+        """C * x: x a function of the instantaneous motion or of the raw signals."""
         return self.filt.apply(x, 0)
+
+    def product(self, x: np.ndarray) -> np.ndarray:
+        """K * x: x a function evaluated on ``base`` (C * the function of the true states, up to F's error)."""
+        return (self.outer or self.filt).apply(x, 0)
 
 
 @dataclass
@@ -158,9 +198,17 @@ class Prepared:
         """Whether an angle travels at least MIN_TRAVEL_COUNTS encoder counts over the recording."""
         return float(np.ptp(x[self.valid])) >= MIN_TRAVEL_COUNTS * self.phi_lsb
 
-    def states(self, sigma: float) -> States:
-        """θ, φ and derivatives seen through G_σ, θ reconstructed through the inverse Bessel path."""
-        f = GaussianFilter.build(sigma, self.dt)
+    def states(self, sigma: float, fine: States | None = None) -> States:
+        """θ, φ and derivatives seen through G_σ (G_σ∘F with ``fine`` seen through F: see States), θ
+        reconstructed through the inverse Bessel path."""
+        outer = GaussianFilter.build(sigma, self.dt)
+        if fine is None:
+            return self._states(outer)
+        s = self._states(GaussianFilter.composed(outer, fine.filt))
+        s.outer, s.fine = outer, fine
+        return s
+
+    def _states(self, f: GaussianFilter) -> States:
         c1, c2 = 0.0, 0.0
         if self.bessel is not None:
             a1, a0 = self.bessel.coefficients()
@@ -181,6 +229,26 @@ class Prepared:
             theta=theta, theta_dot=theta_dot, theta_ddot=theta_ddot,
             phi=f.apply(self.phi, 0), phi_dot=f.apply(self.phi, 1), phi_ddot=f.apply(self.phi, 2), filt=f,
         )
+
+
+def canonical_angles(theta: np.ndarray, phi: np.ndarray, keep_phi: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(θ, φ) made independent of where the angles wrap and of the encoders' absolute turn counts.
+
+    θ is unwrapped (a pendulum angle that wraps at ±π becomes continuous) and shifted by whole turns so
+    that its median lies in [−π, π] when the pendulum is mostly up (cos > 0), in [0, 2π) when it mostly
+    hangs (so that neither case sits on the boundary). φ is shifted by whole turns so that the middle of its
+    travel lies in [−π, π] — unless ``keep_phi`` (the rig's config declares a cable spring, whose rest angle
+    is then given in the encoder's own turns). Eq. 4 is 2π-periodic in θ and independent of φ; only a spring
+    depends on φ itself."""
+    theta = np.unwrap(np.asarray(theta, dtype=float))
+    m = float(np.median(theta))
+    turns = round(m / (2 * math.pi)) if math.cos(m) > 0 else math.floor(m / (2 * math.pi))
+    theta = theta - 2 * math.pi * turns if turns else theta
+    phi = np.asarray(phi, dtype=float)
+    if not keep_phi:
+        shift = round(0.5 * (float(np.max(phi)) + float(np.min(phi))) / (2 * math.pi))
+        phi = phi - 2 * math.pi * shift if shift else phi
+    return theta, phi
 
 
 MIN_TRAVEL_COUNTS = 50  # an angle that moves less than this is "still" for the diagnosis
@@ -248,6 +316,8 @@ def prepare(rec: Recording, rig: RigConfig, bessel_cutoff: float | str | None = 
         cols["theta_dot"] = rec.theta_dot
     cols = {k: np.asarray(v, dtype=float) for k, v in cols.items()}
     t, cols = _repair(np.asarray(rec.t, dtype=float), cols, notes)
+    # before any resampling (an interpolation across a wrap of θ would be wrong)
+    cols["theta"], cols["phi"] = canonical_angles(cols["theta"], cols["phi"], keep_phi=rig.effects.arm_spring is not None)
     if len(t) < 200:
         raise UserError(f"recording has {len(t)} usable samples; the diagnosis needs at least 200 (a few seconds)")
     steps = np.diff(t)

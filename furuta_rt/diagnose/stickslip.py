@@ -47,7 +47,9 @@ MAX_WINDOWS = 20  # evenly spread over the recording (each costs a simulation pe
 MIN_WINDOWS = 8
 SUBSTEP_HZ = 2000.0  # the delay line's resolution is one substep
 
-# grids: breakaway torque as a multiple of the sliding level; transport delay in s
+# grids: sliding level (when the regression did not select one) as a multiple of its provisional value; breakaway
+# torque as a multiple of the sliding level; transport delay in s
+COULOMB_RATIOS = (0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
 STICTION_RATIOS = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)
 DELAYS = (0.0, 0.001, 0.002, 0.003, 0.004, 0.006, 0.008, 0.011)
 REL_APART, T_APART = 0.01, 3.0  # look-alikes told apart: by ≥ 1 % and consistently, or by ≥ 10 % (as in the engine)
@@ -236,16 +238,21 @@ EXPERIMENT = (
 )
 
 
-GRIDS: dict[str, tuple[str, tuple[float, ...]]] = {"arm_stiction": ("Fs", STICTION_RATIOS), "input_delay": ("delay", DELAYS)}
+GRIDS: dict[str, tuple[str, tuple[float, ...]]] = {
+    "arm_coulomb": ("Fc", COULOMB_RATIOS), "arm_stiction": ("Fs", STICTION_RATIOS), "input_delay": ("delay", DELAYS),
+}
+TIMING = ("arm_stiction", "input_delay")  # the look-alike pair of the breakaways' timing
 
 
 def _profile(name: str, current: dict[str, dict[str, float]], base: np.ndarray,
              errors: Callable[[dict[str, dict[str, float]]], np.ndarray], n_blocks: int,
-             support: Callable[[float], float | None]) -> WindowFit:
-    """``name`` added to the model ``current``, its parameter profiled on the windows (Fs from the sliding level up)."""
+             support: Callable[[float], float | None], coulomb: float | None = None) -> WindowFit:
+    """``name`` added to the model ``current``, its parameter profiled on the windows (Fs from the sliding level up,
+    Fc around the provisional level ``coulomb``)."""
     param, grid = GRIDS[name]
     null = current["arm_coulomb"]["Fc"] if name == "arm_stiction" else 0.0
-    values = [null * r for r in grid] if name == "arm_stiction" else list(grid)
+    scale = {"arm_stiction": null, "arm_coulomb": coulomb or 0.0}.get(name)
+    values = [scale * r for r in grid] if scale is not None else list(grid)
     fit = profile(name, param, lambda v: errors({**current, name: {param: v}}), values, null, base, n_blocks)
     if name == "input_delay":
         fit.support = support(fit.value)
@@ -254,7 +261,7 @@ def _profile(name: str, current: dict[str, dict[str, float]], base: np.ndarray,
 
 def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, fine: States, th: Thresholds,
            delay_support: Callable[[float], float | None], wins: list[Window] | None = None,
-           only: set[str] | None = None, lugre: bool = True) -> WindowStage | None:
+           only: set[str] | None = None, lugre: bool = True, coulomb: float | None = None) -> WindowStage | None:
     """Forward selection of arm_stiction (on top of Coulomb friction) and input_delay (when none was found) on the
     stick windows, starting from the effects ``found``, then LuGre in place of Coulomb + stiction (``lugre``).
     ``only``: the candidates to try (a second reading, on a better sliding level). None when there are too few
@@ -262,9 +269,14 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
 
     ``delay_support(d)``: the arm regression's held-out gain with a delay d (None when the arm equation has too
     few sliding rows). A delay must also pay on the sliding rows: the breakaways alone cannot always tell a late
-    breakaway (delay) from a high one (stiction), the sliding arm can."""
+    breakaway (delay) from a high one (stiction), the sliding arm can.
+
+    ``coulomb``: without Coulomb friction in ``found``, its provisional sliding level (the arm regression's fit
+    of it): the sliding level is then a candidate of the windows too (an arm that sticks needs a dry friction;
+    a deadzone or an input gain, which the sliding rows may favour alike, lets it creep or coast instead), and a
+    breakaway torque above it is tried once it is in."""
     wins = windows(prep) if wins is None else wins
-    if len(wins) < MIN_WINDOWS or "arm_coulomb" not in found:
+    if len(wins) < MIN_WINDOWS or ("arm_coulomb" not in found and not (coulomb or 0.0) > 0):
         return None
     out = WindowStage(wins)
     current = dict(found)
@@ -274,10 +286,14 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
 
     base = errors(current)
     first: dict[str, WindowFit] = {}
-    names = [n for n in GRIDS if n not in current and (prep.commanded or n != "input_delay") and (only is None or n in only)
-             and not (n == "input_delay" and "command_latency" in current)]
+    def eligible(n: str) -> bool:
+        return (n not in current and (prep.commanded or n != "input_delay") and (only is None or n in only)
+                and not (n == "input_delay" and "command_latency" in current)
+                and (n != "arm_stiction" or "arm_coulomb" in current))
+
+    names = [n for n in GRIDS if eligible(n)]
     while names:
-        fits = {name: _profile(name, current, base, errors, th.n_blocks, delay_support) for name in names}
+        fits = {name: _profile(name, current, base, errors, th.n_blocks, delay_support, coulomb) for name in names}
         first = first or dict(fits)
         ok = [f for f in fits.values() if f.accepted(th)]
         best = max(ok, key=lambda f: f.gain) if ok else None
@@ -291,6 +307,8 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
         # what paid on its own is tried on top, if its value there still lowers the error
         names = [f.name for f in ok if f is not best
                  and base.sum() - errors({**current, f.name: {f.param: f.value}}).sum() >= th.min_gain * base.sum()]
+        if best.name == "arm_coulomb" and eligible("arm_stiction"):  # a breakaway above the sliding level, now there is one
+            names.append("arm_stiction")
     _lookalikes(out, first, th)
     if lugre and "arm_stiction" in out.added and "arm_lugre" not in found:
         _lugre(rig, current, out, first["arm_stiction"].base_blocks, errors, th)
@@ -362,9 +380,11 @@ def _lookalikes(out: WindowStage, first: dict[str, WindowFit], th: Thresholds, r
                 t_apart: float = 3.0) -> None:
     """A breakaway torque and a transport delay both move the breakaways: when one was selected, the other in
     its place (from the same starting model) is compared on the held-out blocks."""
-    if len(first) < 2 or len(out.added) != 1:
+    first = {k: v for k, v in first.items() if k in TIMING}
+    added = [n for n in out.added if n in TIMING]
+    if len(first) < 2 or len(added) != 1:
         return
-    name = next(iter(out.added))
+    name = added[0]
     other = next(n for n in first if n != name)
     a, b = first[name], first[other]
     rel = (b.cv - a.cv) / a.base  # difference of the held-out gains over the model with neither
