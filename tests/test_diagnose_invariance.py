@@ -17,8 +17,8 @@ import pytest
 
 from furuta_rt.config import load_rig, rig_from_dict
 from furuta_rt.diagnose import Options, diagnose, suite
-from furuta_rt.diagnose.library import CANDIDATES, Context
-from furuta_rt.diagnose.select import Thresholds
+from furuta_rt.diagnose.library import ARM, CANDIDATES, Context
+from furuta_rt.diagnose.select import EquationModel, Thresholds
 from furuta_rt.diagnose.signals import GaussianFilter, canonical_angles, prepare
 from furuta_rt.diagnose.stickslip import assess
 from furuta_rt.model.rig import RigModel
@@ -123,16 +123,17 @@ def test_large_motion_finds_the_arm_inertia(swings, name, kind, factor) -> None:
 
 
 def test_fine_kernel_noise_is_removed_by_the_outer_kernel(swings) -> None:
-    """The encoder's quantisation through the 5 ms kernel's second derivative is large (tens of rad/s² on a 2048-count
+    """The encoder's quantisation through the 5 ms kernel's second derivative is large (≈ 10 rad/s² on a 2048-count
     encoder), but it enters eq. 4 linearly and the outer kernel removes it: the composed kernel's noise gain for φ̈ is
-    that of the wide one alone within 2 %, and the nominal residual of a still recording stays at the noise floor."""
+    no larger than the wide one's alone, and the nominal residual of a still recording stays at the noise floor."""
     dt, lsb = 0.002, 2 * math.pi / 2048
     fine, outer = GaussianFilter.build(0.005, dt), GaussianFilter.build(0.03, dt)
     both = GaussianFilter.composed(outer, fine)
     q = lsb / math.sqrt(12.0)
     fine_noise = q * float(np.linalg.norm(fine.kernels[2]))
-    assert fine_noise > 10.0  # rad/s²: the fine kernel alone does not remove it
-    assert q * float(np.linalg.norm(both.kernels[2])) == pytest.approx(q * float(np.linalg.norm(outer.kernels[2])), rel=0.02)
+    assert fine_noise > 5.0  # rad/s²: the fine kernel alone does not remove it
+    composed_noise, outer_noise = (q * float(np.linalg.norm(k.kernels[2])) for k in (both, outer))
+    assert 0.9 * outer_noise < composed_noise <= outer_noise  # 0.11 rad/s²: no amplification by F
     assert both.width == pytest.approx(math.hypot(0.03, 0.005), rel=0.01)
     # quantised white noise on a still pendulum: the pendulum residual (all of eq. 4's products) is noise, no bias
     rig, _ = swings["qube_servo2"]
@@ -248,12 +249,16 @@ def sticking(thesis_rig, tmp_path_factory):
 
 def test_stick_stage_runs_without_coulomb_selected_first(thesis_rig, sticking) -> None:
     """With no Coulomb friction in the model (say the regression could not tell it from a deadzone or a gain), the
-    stick windows take the sliding level too, from a provisional value 30 % off, then the breakaway above it."""
+    stick windows decide on a dry friction at the sliding rows' provisional level, then on the breakaway above it."""
     prep = prepare(sticking, thesis_rig)
-    fine = prep.states(0.005)
-    stage = assess(thesis_rig, {}, prep, fine, Thresholds(), lambda d: None, coulomb=0.035)
+    ctx = Context.build(prep, thesis_rig, 0.03, 0.05, 0.005)
+    em = EquationModel(ctx, ARM, Thresholds())
+    level = em.evaluate_with(em.spec0(), "arm_coulomb").params["arm_coulomb"]["Fc"]  # as engine._provisional_coulomb
+    assert level == pytest.approx(0.05, rel=0.1)
+    stage = assess(thesis_rig, {}, prep, ctx.fine, Thresholds(), lambda d: None, coulomb=level)
     assert stage is not None
     assert set(stage.added) == {"arm_coulomb", "arm_stiction"}
-    assert stage.added["arm_coulomb"]["Fc"] == pytest.approx(0.05, rel=0.2)
+    assert stage.added["arm_coulomb"]["Fc"] == level
+    assert stage.fits["arm_coulomb"].gain > 0.5
     assert stage.added["arm_stiction"]["Fs"] == pytest.approx(0.08, rel=0.2)
-    assert assess(thesis_rig, {}, prep, fine, Thresholds(), lambda d: None) is None  # no level at all: no stage
+    assert assess(thesis_rig, {}, prep, ctx.fine, Thresholds(), lambda d: None) is None  # no level at all: no stage

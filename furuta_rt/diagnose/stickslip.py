@@ -47,9 +47,10 @@ MAX_WINDOWS = 20  # evenly spread over the recording (each costs a simulation pe
 MIN_WINDOWS = 8
 SUBSTEP_HZ = 2000.0  # the delay line's resolution is one substep
 
-# grids: sliding level (when the regression did not select one) as a multiple of its provisional value; breakaway
-# torque as a multiple of the sliding level; transport delay in s
-COULOMB_RATIOS = (0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
+# grids: sliding level (when the regression did not select one: its provisional value, the windows only decide whether
+# it is there — they measure the breakaway, the sliding rows the level); breakaway torque as a multiple of the
+# sliding level; transport delay in s
+COULOMB_RATIOS = (1.0,)
 STICTION_RATIOS = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)
 DELAYS = (0.0, 0.001, 0.002, 0.003, 0.004, 0.006, 0.008, 0.011)
 REL_APART, T_APART = 0.01, 3.0  # look-alikes told apart: by ≥ 1 % and consistently, or by ≥ 10 % (as in the engine)
@@ -254,6 +255,8 @@ def _profile(name: str, current: dict[str, dict[str, float]], base: np.ndarray,
     scale = {"arm_stiction": null, "arm_coulomb": coulomb or 0.0}.get(name)
     values = [scale * r for r in grid] if scale is not None else list(grid)
     fit = profile(name, param, lambda v: errors({**current, name: {param: v}}), values, null, base, n_blocks)
+    if name == "arm_coulomb":
+        fit.paired = True  # one value, no departure to test: significance by the blocks' paired improvement
     if name == "input_delay":
         fit.support = support(fit.value)
     return fit
@@ -272,9 +275,9 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
     breakaway (delay) from a high one (stiction), the sliding arm can.
 
     ``coulomb``: without Coulomb friction in ``found``, its provisional sliding level (the arm regression's fit
-    of it): the sliding level is then a candidate of the windows too (an arm that sticks needs a dry friction;
-    a deadzone or an input gain, which the sliding rows may favour alike, lets it creep or coast instead), and a
-    breakaway torque above it is tried once it is in."""
+    of it on the sliding rows): Coulomb friction at that level is then a candidate of the windows too (an arm that
+    sticks needs a dry friction; a deadzone or an input gain, which the sliding rows may favour alike, lets it
+    creep or coast instead), and a breakaway torque above it is tried once it is in."""
     wins = windows(prep) if wins is None else wins
     if len(wins) < MIN_WINDOWS or ("arm_coulomb" not in found and not (coulomb or 0.0) > 0):
         return None
@@ -307,8 +310,8 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
         # what paid on its own is tried on top, if its value there still lowers the error
         names = [f.name for f in ok if f is not best
                  and base.sum() - errors({**current, f.name: {f.param: f.value}}).sum() >= th.min_gain * base.sum()]
-        if best.name == "arm_coulomb" and eligible("arm_stiction"):  # a breakaway above the sliding level, now there is one
-            names.append("arm_stiction")
+        if best.name == "arm_coulomb":  # the timing candidates afresh on top of the sliding level (a breakaway above it)
+            names, first = [n for n in GRIDS if eligible(n)], {}
     _lookalikes(out, first, th)
     if lugre and "arm_stiction" in out.added and "arm_lugre" not in found:
         _lugre(rig, current, out, first["arm_stiction"].base_blocks, errors, th)
