@@ -225,6 +225,12 @@ def test_canonical_angles() -> None:
         np.testing.assert_allclose(ph, 0.3 * np.sin(t), atol=1e-9)
     th, _ = canonical_angles(0.1 * np.sin(t) - 4 * math.pi, t)
     np.testing.assert_allclose(th, 0.1 * np.sin(t), atol=1e-9)
+    # prepare() keeps what it took away, for the checks of the angles' units (θ = 180 at rest reads as degrees)
+    rig = load_rig("thesis")
+    rec = Recording(t=t, theta=theta + 2 * math.pi * 28, phi=0.3 * np.sin(t) - 2 * math.pi * 3, u=np.zeros_like(t))
+    prep = prepare(rec, rig)
+    assert prep.turns == pytest.approx((2 * math.pi * 28, -2 * math.pi * 3))
+    np.testing.assert_allclose(prep.as_recorded().theta_f, rec.theta, atol=1e-9)
     # a rig whose config declares a spring keeps the encoder's own turns
     _, ph = canonical_angles(theta, t + 2 * math.pi * 4, keep_phi=True)
     np.testing.assert_allclose(ph, t + 2 * math.pi * 4)

@@ -123,6 +123,7 @@ def _moves(x: np.ndarray, lsb: float, counts: int = 50) -> bool:
 def conventions(prep: Prepared, rig: RigConfig) -> list[str]:
     """Check the recording's sign and unit conventions against the rig's (see the module docstring). Raises a
     one-line UserError saying what to change when the evidence is strong; returns notes otherwise."""
+    prep = prep.as_recorded()  # the angles' units show in their recorded values (θ = 180 at rest)
     notes: list[str] = []
     model = RigModel.from_config(rig)
     rows = prep.valid

@@ -30,7 +30,7 @@ delay d is a continuous parameter.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -184,6 +184,12 @@ class Prepared:
     phi_lsb: float
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)  # what prepare() repaired (gaps filled, samples merged, resampled)
+    turns: tuple[float, float] = (0.0, 0.0)  # what canonical_angles took from (θ, φ) (rad, whole turns)
+
+    def as_recorded(self) -> Prepared:
+        """These signals with the angles as recorded (the whole turns canonical_angles removed put back): for checks
+        of the recording's units, where θ = 180 means something."""
+        return replace(self, theta_f=self.theta_f + self.turns[0], phi=self.phi + self.turns[1], turns=(0.0, 0.0))
 
     @property
     def n(self) -> int:
@@ -317,7 +323,9 @@ def prepare(rec: Recording, rig: RigConfig, bessel_cutoff: float | str | None = 
     cols = {k: np.asarray(v, dtype=float) for k, v in cols.items()}
     t, cols = _repair(np.asarray(rec.t, dtype=float), cols, notes)
     # before any resampling (an interpolation across a wrap of θ would be wrong)
-    cols["theta"], cols["phi"] = canonical_angles(cols["theta"], cols["phi"], keep_phi=rig.effects.arm_spring is not None)
+    raw = cols["theta"], cols["phi"]
+    cols["theta"], cols["phi"] = canonical_angles(*raw, keep_phi=rig.effects.arm_spring is not None)
+    turns = (float(np.median(raw[0] - cols["theta"])), float(np.median(raw[1] - cols["phi"])))
     if len(t) < 200:
         raise UserError(f"recording has {len(t)} usable samples; the diagnosis needs at least 200 (a few seconds)")
     steps = np.diff(t)
@@ -353,5 +361,5 @@ def prepare(rec: Recording, rig: RigConfig, bessel_cutoff: float | str | None = 
         command_lag=rig.control.command_delay_ticks * dt, valid=valid,
         phi_lsb=2 * math.pi / rig.sensors.encoder_counts_per_rev,
         extra={k: np.asarray(v) for k, v in rec.extra.items() if len(v) == n and same},
-        notes=notes,
+        notes=notes, turns=turns,
     )
