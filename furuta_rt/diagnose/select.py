@@ -395,7 +395,9 @@ class EquationModel:
         else:
             ev = self.evaluate(spec)
         gain = (current.cv - ev.cv) / current.cv if current.cv else 0.0
-        ok = gain >= 2 * self.th.min_gain and all(CANDIDATES[n].plausible(ev.params[n], self.ctx.rig, self.ctx.arm_travel) for n in added)
+        ok = gain >= 2 * self.th.min_gain and all(
+            CANDIDATES[n].plausible(ev.params[n], self.ctx.rig, self.ctx.arm_travel) for n in added
+        )
         trace.append({"step": len(current.spec.effects), "candidate": "+".join(added), "pair": added, "joint": True,
                       "cv_gain": gain, "t": min(ev.t_stat.get(n, 0.0) for n in added),
                       "params": {n: ev.params[n] for n in added}, "accepted": ok, "ok": ok})
