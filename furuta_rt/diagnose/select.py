@@ -315,7 +315,7 @@ class EquationModel:
                 continue
             out = []
             for other, ev in evals.items():
-                if (other == name or not CANDIDATES[other].plausible(ev.params[other], self.ctx.rig)
+                if (other == name or not CANDIDATES[other].plausible(ev.params[other], self.ctx.rig, self.ctx.arm_travel)
                         or not self.can_add(spec.without(name), other)):
                     continue
                 rel = (ev.cv - won.cv) / won.cv if won.cv else 0.0
