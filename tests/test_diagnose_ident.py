@@ -106,15 +106,20 @@ def _dc_rig():
 
 def _open_loop(rig, effects: list[str], volts: np.ndarray) -> Recording:
     """Open-loop voltage steps with the pendulum hanging; θ read by an 8192-count encoder (the rig's ADC model ends at
-    ±π), the command of tick k acting from tick k+1 (the rig's command_delay_ticks = 1)."""
+    ±π), the command of tick k acting from tick k+1 (the rig's command_delay_ticks = 1) unless a command_latency says
+    otherwise."""
     model = RigModel.from_config(rig, effects_from_assignments(effects))
     sim = Simulator(model, rig.control.rate_hz, 5000.0, x0=(math.pi, 0.0, 0.0, 0.0))
     lsb = 2 * math.pi / 8192
     cols = np.empty((len(volts), 3))
     for k, v in enumerate(volts):
         cols[k] = (sim.t, round(sim.theta / lsb) * lsb, sim.measure().phi)
-        sim.advance()
-        sim.set_command(float(v))
+        if sim.commands_at_sample:  # a command_latency effect: the simulator delays it by the total
+            sim.set_command(float(v))
+            sim.advance()
+        else:
+            sim.advance()
+            sim.set_command(float(v))
     return Recording(t=cols[:, 0], theta=cols[:, 1], phi=cols[:, 2], u=np.asarray(volts, float))
 
 
@@ -156,3 +161,18 @@ def test_torque_per_volt_seven_times_the_datasheet_is_found_as_gain_and_damping_
     assert c["time_constant"]["value"] == pytest.approx(m22 / (7 * d), rel=0.05)
     for combo in c.values():
         assert 0 < combo["se"] < 0.02 * abs(combo["value"])
+
+
+def test_a_latency_one_tick_longer_than_configured_is_measured_on_a_dc_motor_rig() -> None:
+    """Two ticks from sample to torque where the config says one: reported as an input_delay of one tick (the total
+    within half a tick), next to the gain and damping, and no command_latency."""
+    rig = load_rig("macstepien")  # as published: back-EMF damping 8.5e-6, the arm's damping all viscous
+    h = 1.0 / rig.control.rate_hz
+    volts = _steps(20.0, 500.0, 0.5, seed=1)
+    t = np.arange(len(volts)) / 500.0
+    late = t >= 10.0  # the second half: two sines (a delay shows in the phase of the whole response, not only at steps)
+    volts[late] = 0.5 * np.sin(2 * np.pi * 0.7 * t[late]) + 0.25 * np.sin(2 * np.pi * 2.3 * t[late])
+    rec = _open_loop(rig, ["command_latency.delay=0.004", "input_gain.gain=7", "arm_viscous.Fv=0.01"], volts)
+    found = {e.name: e.params for e in diagnose(rec, rig, FAST).effects}
+    assert set(found) == {"input_gain", "arm_viscous", "input_delay"}, found
+    assert abs(h + found["input_delay"]["delay"] - 0.004) < 0.5 * h
