@@ -12,6 +12,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -67,7 +68,7 @@ def files() -> Iterator[dict[str, Path]]:
     put("bad_syntax.toml", 'name = "x"\n[plant\nl = 0.4\n')
     put("unknown_key.toml", thesis.replace("[plant]\n", "[plant]\nmasss = 0.02\n", 1))
     put("negative_mass.toml", thesis.replace("m = 0.02 ", "m = -0.02 ", 1))
-    put("wrong_type.toml", thesis.replace("l = 0.413 ", 'l = "long" ', 1))
+    put("wrong_type.toml", re.sub(r"(?m)^l = 0\.413 ", 'l = "long" ', thesis, count=1))
     put("png.toml", PNG)
     put("empty.toml", "")
     (d / "dir.toml").mkdir()
