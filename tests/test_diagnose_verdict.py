@@ -4,6 +4,7 @@ floor matches the true sensor part of the residual on the simulator."""
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import replace
 
 import numpy as np
@@ -107,3 +108,23 @@ def test_describe_never_says_consistent_without_the_verdict():
     assert "consistent" not in describe(loc, [])
     assert "consistent" not in describe(loc, [], "unexplained")
     assert "consistent" in describe(loc, [], "consistent")
+
+
+def test_a_transient_far_above_the_floor_is_never_within_it():
+    """An excess concentrated in one block (a step's transient) has a small block t and fails the sign test; the
+    size guard still refuses it, and a residual that is the floor's own size stays within."""
+    from furuta_rt.diagnose.verdict import FLOOR_ACCURACY, N_BLOCKS, SIZE_MAX, T_CRIT, block_t
+
+    rng = np.random.default_rng(0)
+    n = 16 * 200
+    floor = rng.standard_normal((4, n))
+    same = rng.standard_normal(n)
+    assert block_t(same, floor) <= T_CRIT
+    transient = same.copy()
+    transient[: n // N_BLOCKS] *= 12.0  # rms ≈ 3× the floor's, all in the first block
+    edges = np.linspace(0, n, N_BLOCKS + 1).round().astype(int)
+    d = np.array([np.mean(transient[a:b] ** 2) - FLOOR_ACCURACY**2 * np.mean(floor[:, a:b] ** 2)
+                  for a, b in itertools.pairwise(edges)])
+    assert np.mean(d) / (np.std(d, ddof=1) / np.sqrt(N_BLOCKS)) <= T_CRIT  # the t test alone would pass it
+    assert np.sqrt(np.mean(transient**2)) > SIZE_MAX * FLOOR_ACCURACY
+    assert block_t(transient, floor) == np.inf

@@ -47,6 +47,7 @@ from furuta_rt.model.plant import FurutaPlant
 N_BLOCKS = 16
 T_CRIT = 2.95  # one-sided 0.5 % point of Student's t with 15 degrees of freedom
 SIGN_MIN = 14  # of 16 blocks above the floor: one-sided binomial p = 0.2 % under H0 (the sign test)
+SIZE_MAX = 2.0  # a residual whose rms exceeds SIZE_MAX·K times the floor's is never within it (the size guard)
 FLOOR_ACCURACY = 1.3  # the floor estimate is within this factor (rms) of the true sensor part (see the docstring)
 MIN_ROWS = 200
 PARTLY = 0.5  # effects must remove at least this share of the excess over the floor for `partly_explained`
@@ -95,7 +96,11 @@ def block_t(r: np.ndarray, floor: np.ndarray, n_blocks: int = N_BLOCKS) -> float
     """t of mean(ms_b(r) − K²·ms_b(floor)) over contiguous blocks (r: residual on the rows; floor: (draws, rows)).
 
     A large excess that varies much between blocks has a small t, so the sign test backs it: when at least SIGN_MIN
-    of the B blocks exceed the floor (one-sided binomial p < 0.5 % under H0), t is +inf."""
+    of the B blocks exceed the floor (one-sided binomial p < 0.5 % under H0), t is +inf. An excess concentrated in a
+    few blocks (a step's transient) passes neither, so a size guard backs both: a residual whose rms is more than
+    SIZE_MAX·K times the floor's cannot be the sensors' (the floor is within K of their true part), t is +inf."""
+    if np.mean(r**2) > (SIZE_MAX * FLOOR_ACCURACY) ** 2 * np.mean(floor**2):
+        return float("inf")
     edges = np.linspace(0, len(r), n_blocks + 1).round().astype(int)
     d = np.array([np.mean(r[a:b] ** 2) - FLOOR_ACCURACY**2 * np.mean(floor[:, a:b] ** 2)
                   for a, b in itertools.pairwise(edges)])
