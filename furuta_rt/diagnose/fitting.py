@@ -66,10 +66,19 @@ class Stats:
 
 
 def _solve(G: np.ndarray, h: np.ndarray) -> np.ndarray:
-    if len(h) == 0:
+    """The ridge-conditioned solution of G c = h; G (..., k, k) and h (..., k) may hold a batch (one LAPACK solve per
+    matrix either way, so a batch gives the same numbers as a loop)."""
+    k = h.shape[-1]
+    if k == 0:
         return h.copy()
-    ridge = 1e-10 * (np.trace(G) / len(h) + 1e-300)
-    return np.linalg.solve(G + ridge * np.eye(len(h)), h)
+    ridge = 1e-10 * (np.trace(G, axis1=-2, axis2=-1) / k + 1e-300)
+    return np.linalg.solve(G + np.asarray(ridge)[..., None, None] * np.eye(k), h[..., None])[..., 0]
+
+
+def _fold_solves(stats: Stats) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(G, h, per-fold coefficients (B, k)): the full-data sums and the leave-one-block-out solutions, in one batch."""
+    G, h = stats.G.sum(0), stats.h.sum(0)
+    return G, h, _solve(G[None] - stats.G, h[None] - stats.h)
 
 
 @dataclass(frozen=True)
@@ -88,15 +97,14 @@ class Fit:
 
 
 def fit(stats: Stats) -> Fit:
-    G, h, s = stats.G.sum(0), stats.h.sum(0), stats.s.sum()
+    G, h, folds = _fold_solves(stats)
+    s = stats.s.sum()
     coef = _solve(G, h)
     sse = float(s - 2 * coef @ h + coef @ G @ coef)
     B = len(stats.s)
-    folds = np.empty((B, len(h)))
     cvb = np.empty(B)
     for b in range(B):
-        c = _solve(G - stats.G[b], h - stats.h[b])
-        folds[b] = c
+        c = folds[b]
         cvb[b] = stats.s[b] - 2 * c @ stats.h[b] + c @ stats.G[b] @ c
     mean = folds.mean(0) if B else coef
     se = np.sqrt((B - 1) / B * np.sum((folds - mean) ** 2, axis=0)) if B > 1 else np.full(len(h), np.inf)
@@ -127,13 +135,19 @@ def vertex(x: np.ndarray, y: np.ndarray, i: int) -> float:
     return float(np.clip(-b / (2 * a), x0, x2))
 
 
-def _train_sse(st: Stats) -> np.ndarray:
+def _sse(st: Stats) -> float:
+    """The in-sample squared error of the full-data fit (``fit(st).sse`` without the fold solves)."""
     G, h, s = st.G.sum(0), st.h.sum(0), st.s.sum()
+    coef = _solve(G, h)
+    return max(float(s - 2 * coef @ h + coef @ G @ coef), 0.0)
+
+
+def _train_sse(st: Stats) -> np.ndarray:
+    _, h, folds = _fold_solves(st)
+    s = st.s.sum()
     out = np.empty(len(st.s))
     for b in range(len(st.s)):
-        Gt, ht = G - st.G[b], h - st.h[b]
-        c = _solve(Gt, ht)
-        out[b] = (s - st.s[b]) - c @ ht
+        out[b] = (s - st.s[b]) - folds[b] @ (h - st.h[b])
     return out
 
 
@@ -144,17 +158,18 @@ def fit_profiled(stats_of: Callable[[float], Stats], grid: np.ndarray) -> tuple[
     Returns the fit at the full-data optimum, that optimum, and the per-fold optima. The CV error is
     honest: each held-out block is predicted at the value that is best on the *other* blocks.
     """
-    stats = [stats_of(float(v)) for v in grid]
-    full = np.array([fit(st).sse for st in stats])
-    train = np.array([_train_sse(st) for st in stats])  # (grid, B)
+    on_grid = [stats_of(float(v)) for v in grid]
+    stats = dict(zip((float(v) for v in grid), on_grid, strict=True))
+    full = np.array([_sse(st) for st in on_grid])
+    train = np.array([_train_sse(st) for st in on_grid])  # (grid, B)
     B = train.shape[1]
     best = vertex(grid, full, int(np.argmin(full)))
     fold_best = np.array([vertex(grid, train[:, b], int(np.argmin(train[:, b]))) for b in range(B)])
     cache: dict[float, Fit] = {}
 
-    def fit_at(v: float) -> Fit:
+    def fit_at(v: float) -> Fit:  # a grid point's statistics are not built twice
         if v not in cache:
-            cache[v] = fit(stats_of(v))
+            cache[v] = fit(stats[v] if v in stats else stats_of(v))
         return cache[v]
 
     f = fit_at(best)

@@ -190,7 +190,7 @@ class Context:
         if key not in self._columns:
             law = LuGre(sigma0=1.0, sigma1=0.0, Fc=0.0, Fs=1.0, vs=vs)
             v = self.arm_direction * np.abs(self.fine.phi_dot)
-            self._columns[key] = self.arm.product(law_on_array(lambda x: -law.steady_state_force(x), v))
+            self._columns[key] = self.arm.product(-law.steady_state_force(v))  # the law takes the array whole
         return self._columns[key]
 
     @cached_property

@@ -15,6 +15,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 
 def _sign(v: float) -> float:
     return 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
@@ -132,7 +134,9 @@ class LuGre:
             )
 
     def g(self, v: float) -> float:
-        return (self.Fc + (self.Fs - self.Fc) * math.exp(-((v / self.vs) ** 2))) / self.sigma0
+        """σ0·g(v) = Fc + (Fs − Fc)·e^(−(v/vs)²) (eq. 3), divided by σ0; ``v`` may be an array (the diagnosis)."""
+        exp = np.exp if isinstance(v, np.ndarray) else math.exp
+        return (self.Fc + (self.Fs - self.Fc) * exp(-((v / self.vs) ** 2))) / self.sigma0
 
     def z_dot(self, z: float, v: float) -> float:
         return v - abs(v) * z / self.g(v)
@@ -145,8 +149,9 @@ class LuGre:
         return -self.force(z, z_dot, v)
 
     def steady_state_force(self, v: float) -> float:
-        """The Stribeck curve: F at constant velocity (z at its equilibrium g(v)·sgn v)."""
-        return self.sigma0 * self.g(v) * _sign(v) + self.Fv * v
+        """The Stribeck curve: F at constant velocity (z at its equilibrium g(v)·sgn v); ``v`` may be an array."""
+        sign = np.sign(v) if isinstance(v, np.ndarray) else _sign(v)
+        return self.sigma0 * self.g(v) * sign + self.Fv * v
 
     def advance(self, z: float, v: float, h: float) -> tuple[float, float]:
         """Exact solution of dz/dt over a step h with v held constant: (z_next, mean dz/dt).
