@@ -150,6 +150,8 @@ class States:
     filt: GaussianFilter
     outer: GaussianFilter | None = None
     fine: States | None = None
+    # the window stages' arm simulations from these states (stickslip.window_errors), kept for the diagnosis
+    simulations: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def base(self) -> States:
