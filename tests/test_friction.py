@@ -113,3 +113,13 @@ def test_no_chattering_when_torque_reverses() -> None:
     stop = int(np.argmax(v == 0.0))
     assert stop > 0 and np.all(v[stop:] == 0.0)  # stays exactly at rest
     assert np.all(v[:stop] > 0.0)  # never reversed on the way
+
+
+def test_lugre_without_dry_friction_is_viscous() -> None:
+    """Fc = Fs = 0 (the config's [compensation.lugre] default): g(v) = 0, the bristles hold nothing — the limit of
+    eq. 3 is z = 0 and F = Fv·v, not a division by zero."""
+    law = LuGre(sigma0=50.0, sigma1=1.0, Fc=0.0, Fs=0.0, vs=0.1, Fv=0.002)
+    z, zd = law.advance(1e-4, 0.5, 1e-3)
+    assert z == 0.0 and zd == pytest.approx(-0.1)
+    z, zd = law.advance(z, -0.7, 1e-3)
+    assert law.force(z, zd, -0.7) == pytest.approx(law.steady_state_force(-0.7)) == pytest.approx(-0.7 * 0.002)

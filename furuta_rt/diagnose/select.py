@@ -47,6 +47,14 @@ class Spec:
         return replace(self, effects=(*self.effects, name))
 
     def without(self, name: str) -> Spec:
+        """The model without ``name`` and without the effects that require it (arm_lugre's Stribeck peak sits on
+        arm_coulomb's sliding level: without that level it has no meaning, and its refit goes negative)."""
+        rest = self._drop(name)
+        for dep in [e for e in rest.effects if CANDIDATES[e].requires == name]:
+            rest = rest.without(dep)
+        return rest
+
+    def _drop(self, name: str) -> Spec:
         kind = CANDIDATES[name].nonlinear
         rest = replace(self, effects=tuple(e for e in self.effects if e != name))
         if kind is None:
@@ -293,13 +301,16 @@ class EquationModel:
         joint = self.joint_step(current, names, trace)
         if joint is not None:
             current = joint
-        # backward pass: every kept effect must still pay for itself (a pair's members given each other)
+        # backward pass: every kept effect must still pay for itself (a pair's members given each other) and stay
+        # physical once the others moved (an effect the rig does not have, refitted negative, is no effect)
         changed = True
-        while changed and len(current.spec.effects) > 1:
+        while changed and current.spec.effects:
             changed = False
             for name in current.spec.effects:
                 reduced = self.evaluate(current.spec.without(name))
-                if (reduced.cv - current.cv) / reduced.cv < self.th.min_gain:
+                if ((name not in self.ctx.known and not CANDIDATES[name].plausible(
+                        current.params[name], self.ctx.rig, self.ctx.arm_travel))
+                        or (reduced.cv - current.cv) / reduced.cv < self.th.min_gain):
                     current = reduced
                     changed = True
                     break

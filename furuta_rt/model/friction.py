@@ -161,7 +161,10 @@ class LuGre:
         """
         if v == 0.0:
             return z, 0.0
-        rate = abs(v) / self.g(v)
+        g = self.g(v)
+        if g == 0.0:  # Fc = Fs = 0: no dry friction, the bristles hold nothing (the limit rate → ∞, z → 0 at once)
+            return 0.0, -z / h
+        rate = abs(v) / g
         z_ss = v / rate
         z_next = z_ss + (z - z_ss) * math.exp(-rate * h)
         return z_next, (z_next - z) / h
