@@ -30,3 +30,19 @@ def test_qube_sine_seed_101_is_diagnosed_with_physical_effects(tmp_path) -> None
     for e in out["effects"]:  # every effect reported is an effect of the vocabulary with a non-zero size
         EFFECT_TYPES[e["name"]].model_validate(e["params"])
         assert any(v != 0 for v in e["params"].values()), e
+
+
+def test_single_step_from_rest_is_a_gain_not_a_bias(tmp_path) -> None:
+    """macstepien-shaped: 1 s at rest, then one voltage step held (true torque per volt ×7, no bias). On the step the
+    gain's extra torque and a constant torque are the same column; the rest before it is not: a bias of the size the
+    step needs would have turned the frictionless arm by many radians there. Reported before: arm_bias 0.151 N m and
+    the speed per volt 43 % low."""
+    case = next(c for c in suite.realistic_cases() if c.seed == 111)
+    rec = suite.generate_realistic(case, tmp_path)
+    out = diagnose(rec, load_rig(case.shape), Options(closed_loop=False)).to_json()
+    found = {e["name"]: e["params"] for e in out["effects"]}
+    assert "arm_bias" not in found and abs(found["input_gain"]["gain"] / 7.0 - 1.0) < 0.02, found
+    told = [a for a in out["lookalikes"] if set(a["effects"]) == {"input_gain", "arm_bias"}]
+    assert told and told[0]["reported"] == "input_gain" and told[0]["rest"]["turn_rad"] > 1.0, told
+    s = suite.score_realistic(case, out, 0.0)
+    assert s.detected["speed_per_volt"], s.errors

@@ -35,6 +35,7 @@ from furuta_rt.diagnose.decay import DecayFit, DecayResult, free_decay, is_free_
 from furuta_rt.diagnose.fitting import Stats, fit, paired_t
 from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, STILL_TICKS, Context
 from furuta_rt.diagnose.locate import Location, describe, locate
+from furuta_rt.diagnose.rest import bias_at_rest as rest_test
 from furuta_rt.diagnose.select import EquationModel, Evaluation, Spec, Thresholds
 from furuta_rt.diagnose.signals import GaussianFilter, Prepared, prepare
 from furuta_rt.model.effects import EFFECT_TYPES, Effects
@@ -255,6 +256,16 @@ def check_lookalikes(
             # told apart: the alternative is clearly worse (by ≥ 1 % and consistently over the blocks, or by ≥ 10 %)
             apart_by_data = rel >= opts.ambiguity_gain and (t >= opts.ambiguity_t or rel >= 10 * opts.ambiguity_gain)
             significant = alt.t_stat.get(other, 0.0) >= opts.thresholds.t_min
+            rest = rest_test(ems[eq].ctx, r.selected if name == "arm_bias" else alt) if "arm_bias" in pair else None
+            if rest is not None and rest["contradicts"] and (name != "arm_bias" or (plausible and significant)):
+                keep, drop = (other, name) if name == "arm_bias" else (name, other)
+                if keep == other and eq in swaps:
+                    continue  # the library's own look-alike (tried first) already takes the bias's place
+                if keep == other:
+                    swaps[eq] = alt
+                apart.append({"effects": [keep, drop], "reported": keep, "rest": rest, "experiment": experiment,
+                              "reason": f"{keep} rather than arm_bias: {rest['text']}"})
+                continue
             sep = None
             if pair == frozenset({"input_gain", "arm_inertia"}) and plausible and significant:
                 gain = (r.selected.params if name == "input_gain" else alt.params)["input_gain"]["gain"]
