@@ -404,8 +404,8 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
             found = [f for eq in res for f in _found(ems[eq], res[eq], [])]
             notes.append(f"arm equation: with a breakaway above the sliding level, stays of ≥ {STICTION_STILL_TICKS} ticks at "
                          f"one encoder count are left out too (they may be short sticks); {em.n_rows} rows")
-        else:
-            found = [f for f in found if f.source != "stick windows"]
+        else:  # the regression's effects as they were (a delay the windows re-timed among them)
+            found = [f for eq in res for f in _found(ems[eq], res[eq], [])]
         first, stick = stick, _stick_windows(ctx, found, ems, res, opts, only=set(stick.added))
         if stick is not None:  # what the first reading compared stays on record
             stick.tried = [{**t, "pass": 1} for t in first.tried] + [{**t, "pass": 2} for t in stick.tried]
@@ -534,9 +534,10 @@ def _stick_windows(ctx: Context, found: list[Found], ems: dict[str, EquationMode
     (from the arm regression's provisional fit of it)."""
     current = {**ctx.known, **{f.name: f.params for f in found}}
     coulomb = None if "arm_coulomb" in current else _provisional_coulomb(ems[ARM], res[ARM], opts)
+    delay = next((f for f in found if f.name == "input_delay" and f.source == "inverse dynamics"), None)
     stick = stickslip.assess(ctx.rig, current, ctx.prep, ctx.fine, opts.thresholds,
                              lambda d: _support(ems[ARM], res[ARM].selected, opts, "delay", d), only=only, lugre=lugre,
-                             coulomb=coulomb)
+                             coulomb=coulomb, delay_se=delay.se.get("delay") if delay is not None else None)
     if stick is not None:
         found[:] = [f for f in found if f.name not in stick.replaces]
         for name, params in stick.added.items():

@@ -53,6 +53,7 @@ SUBSTEP_HZ = 2000.0  # the delay line's resolution is one substep
 COULOMB_RATIOS = (1.0,)
 STICTION_RATIOS = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)
 DELAYS = (0.0, 0.001, 0.002, 0.003, 0.004, 0.006, 0.008, 0.011)
+RETIME_SE, RETIME_STEP = 4.0, 0.0005  # a delay the rows found is re-timed within 4 of their se (se ≥ half this step)
 REL_APART, T_APART = 0.01, 3.0  # look-alikes told apart: by ≥ 1 % and consistently, or by ≥ 10 % (as in the engine)
 LUGRE_VS_RATIOS = (0.2, 0.5, 1.0, 2.0, 4.0)  # Stribeck speed, times the rig's [compensation.lugre] vs
 LUGRE_EXPERIMENT = (
@@ -167,6 +168,7 @@ class WindowFit:
     step: float  # local grid step at the optimum
     support: float | None = None  # input_delay: held-out gain of the arm regression (sliding rows) at this delay
     paired: bool = False  # significance by the blocks' paired improvement (a limit has no "departure" to test)
+    retimed: bool = False  # input_delay the sliding rows found, re-timed on the windows (within their uncertainty)
 
     @property
     def cv(self) -> float:
@@ -198,7 +200,7 @@ class WindowFit:
         n = self.errors.shape[1]
         penalty = np.log(max(n, 2)) * self.cv / n
         significant = self.t >= th.t_min or (self.gain >= th.strong_gain and self.t >= th.t_strong)
-        supported = self.name != "input_delay" or (self.support is not None and self.support >= th.min_gain)
+        supported = self.name != "input_delay" or self.retimed or (self.support is not None and self.support >= th.min_gain)
         return self.base > 0 and self.gain >= th.min_gain and self.base - self.cv > penalty and significant and supported
 
     def value_on(self, mask: np.ndarray) -> float:
@@ -277,24 +279,31 @@ TIMING = ("arm_stiction", "input_delay")  # the look-alike pair of the breakaway
 
 def _profile(name: str, current: dict[str, dict[str, float]], base: np.ndarray,
              errors: Callable[[dict[str, dict[str, float]]], np.ndarray], n_blocks: int,
-             support: Callable[[float], float | None], coulomb: float | None = None) -> WindowFit:
+             support: Callable[[float], float | None], coulomb: float | None = None,
+             retime: float | None = None) -> WindowFit:
     """``name`` added to the model ``current``, its parameter profiled on the windows (Fs from the sliding level up,
-    Fc around the provisional level ``coulomb``)."""
+    Fc around the provisional level ``coulomb``). ``retime``: input_delay is already in ``current`` (the sliding
+    rows found it): its value is profiled on the windows against the rows' value, within ``retime`` of it."""
     param, grid = GRIDS[name]
     null = current["arm_coulomb"]["Fc"] if name == "arm_stiction" else 0.0
     scale = {"arm_stiction": null, "arm_coulomb": coulomb or 0.0}.get(name)
     values = [scale * r for r in grid] if scale is not None else list(grid)
+    if retime is not None:
+        null = current[name][param]
+        values = sorted({null, *(v for v in values if abs(v - null) <= retime)})
     fit = profile(name, param, lambda v: errors({**current, name: {param: v}}), values, null, base, n_blocks)
-    if name == "arm_coulomb":
-        fit.paired = True  # one value, no departure to test: significance by the blocks' paired improvement
+    if name == "arm_coulomb" or retime is not None:
+        fit.paired = True  # one value / a value already there: significance by the blocks' paired improvement
     if name == "input_delay":
-        fit.support = support(fit.value)
+        fit.support = support(fit.value) if retime is None else None
+        fit.retimed = retime is not None
     return fit
 
 
 def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, fine: States, th: Thresholds,
            delay_support: Callable[[float], float | None], wins: list[Window] | None = None,
-           only: set[str] | None = None, lugre: bool = True, coulomb: float | None = None) -> WindowStage | None:
+           only: set[str] | None = None, lugre: bool = True, coulomb: float | None = None,
+           delay_se: float | None = None) -> WindowStage | None:
     """Forward selection of arm_stiction (on top of Coulomb friction) and input_delay (when none was found) on the
     stick windows, starting from the effects ``found``, then LuGre in place of Coulomb + stiction (``lugre``).
     ``only``: the candidates to try (a second reading, on a better sliding level). None when there are too few
@@ -307,7 +316,12 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
     ``coulomb``: without Coulomb friction in ``found``, its provisional sliding level (the arm regression's fit
     of it on the sliding rows): Coulomb friction at that level is then a candidate of the windows too (an arm that
     sticks needs a dry friction; a deadzone or an input gain, which the sliding rows may favour alike, lets it
-    creep or coast instead), and a breakaway torque above it is tried once it is in."""
+    creep or coast instead), and a breakaway torque above it is tried once it is in.
+
+    ``delay_se``: the standard error of an input_delay the sliding rows found (in ``found``). The breakaways time
+    it more directly than the rows (which may hold brief sticks, where the friction is the held torque, not ±Fc),
+    and a delay set wrong there reads as a breakaway torque (a late breakaway): the delay is re-timed on the windows,
+    within RETIME_SE of its standard errors of the rows' value, as a candidate beside the breakaway torque."""
     wins = windows(prep) if wins is None else wins
     if len(wins) < MIN_WINDOWS or ("arm_coulomb" not in found and not (coulomb or 0.0) > 0):
         return None
@@ -319,14 +333,22 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
 
     base = errors(current)
     first: dict[str, WindowFit] = {}
+    retime = (RETIME_SE * max(delay_se, 0.5 * RETIME_STEP) if delay_se is not None and "input_delay" in found
+              and prep.commanded else None)
+
     def eligible(n: str) -> bool:
-        return (n not in current and (prep.commanded or n != "input_delay") and (only is None or n in only)
+        return ((n not in current or (n == "input_delay" and retime is not None and n not in out.added))
+                and (prep.commanded or n != "input_delay") and (only is None or n in only)
                 and not (n == "input_delay" and "command_latency" in current)
                 and (n != "arm_stiction" or "arm_coulomb" in current))
 
+    def fit_of(name: str) -> WindowFit:
+        return _profile(name, current, base, errors, th.n_blocks, delay_support, coulomb,
+                        retime if name in found and name == "input_delay" else None)
+
     names = [n for n in GRIDS if eligible(n)]
     while names:
-        fits = {name: _profile(name, current, base, errors, th.n_blocks, delay_support, coulomb) for name in names}
+        fits = {name: fit_of(name) for name in names}
         first = first or dict(fits)
         ok = [f for f in fits.values() if f.accepted(th)]
         best = max(ok, key=lambda f: f.gain) if ok else None
@@ -336,6 +358,8 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
         current[best.name] = {best.param: best.value}
         out.added[best.name] = {best.param: best.value}
         out.fits[best.name] = best
+        if best.retimed:
+            out.replaces.append(best.name)
         base = errors(current)
         # what paid on its own is tried on top, if its value there still lowers the error
         names = [f.name for f in ok if f is not best
