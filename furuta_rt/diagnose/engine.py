@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose import checks, gate, identify, peaks, stickslip, verdict, verify
+from furuta_rt.diagnose import checks, gate, identify, latency, peaks, stickslip, verdict, verify
 from furuta_rt.diagnose.decay import DecayFit, DecayResult, free_decay, is_free_decay
 from furuta_rt.diagnose.fitting import Stats, fit, paired_t
 from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, STILL_TICKS, Context
@@ -457,6 +457,7 @@ def _select(ctx: Context, eq: str, opts: Options, rows: np.ndarray | None = None
     nominal, selected, trace = em.select()
     if selected.spec.effects:
         selected = refit(em, selected.spec)
+    selected = latency.settle(em, selected, trace)
     loc = locate(ctx, eq, em.target(em.spec0()), em.row_mask)
     return em, EquationResult(eq, em.n_rows, nominal, selected, trace, loc)
 

@@ -1,0 +1,109 @@
+"""The command latency measured jointly with the arm's linear parameters (issue 14, item 2).
+
+The forward selection adds ``input_delay`` / ``command_latency`` as one candidate among others, profiled before the
+gain, inertia and damping are in the model: the profile is then biased (a wrong gain or inertia moves the phase
+too) and its fold-wise optima scatter. This stage runs on the arm equation's final selected model: the *total*
+latency L (sample instant → torque acting) is profiled afresh on a grid from one tick below 0 to 50 ms, with every
+linear parameter refitted at each lag (the held command is a kernel integral at any lag, so each point is one
+least-squares fit) and the arm inertia change ΔJ re-profiled given the lag (coordinate descent, two passes).
+
+The latency is reported when it differs from the config's significantly: the optimum at least ``MIN_TICKS`` of a
+tick away, its held-out error (each block predicted at the lag best on the others) below the config's by ≥ 2·min_gain
+and beyond the BIC penalty of one parameter, and either a likelihood ratio n_eff·ln(SSE_config/SSE_optimum) ≥ t_min²
+(n_eff the independent residuals) or a held-out gain ≥ strong_gain. Not the selection's ≥ 5 % rule alone: a lag that
+only shifts the phase of a slow response gains less, and not the fold-wise optima's scatter alone: on a chirp or a
+swing-up the blocks carry very different timing information, and leaving out the one fast block moves the optimum.
+A longer latency is an ``input_delay`` on top of ``command_delay_ticks·h``, a shorter
+one a ``command_latency`` (the total); an optimum more than half a tick below 0 (acausal) is something else a lead
+would mimic, and nothing is reported. Where the latency is not significant, a latency effect the selection took is
+removed (the config's latency stands).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from furuta_rt.diagnose.fitting import fit_profiled
+from furuta_rt.diagnose.library import ARM, CANDIDATES
+from furuta_rt.diagnose.select import EquationModel, Evaluation, Spec
+
+LATENCY_EFFECTS = ("input_delay", "command_latency")
+MIN_TICKS = 0.25  # a departure from the config's latency smaller than this is not named
+MAX_DELAY = 0.05  # s on top of the config's lag (as select.EquationModel.grid("delay"))
+PASSES = 2  # coordinate-descent passes (lag, then ΔJ given the lag)
+
+
+def _without_latency(spec: Spec) -> Spec:
+    for name in LATENCY_EFFECTS:
+        if name in spec.effects:
+            spec = spec.without(name)
+    return spec
+
+
+def _grid(em: EquationModel, centre: float | None = None) -> np.ndarray:
+    """path.delay values (on top of the config's lag): totals from one tick below 0 to the lag + MAX_DELAY, one tick
+    apart; with ``centre``, a quarter tick apart within two ticks of it."""
+    prep = em.ctx.prep
+    lag, h = prep.command_lag, prep.dt
+    if centre is None:
+        return np.arange(-lag - h, MAX_DELAY + 1e-12, h)
+    return np.arange(max(centre - 2 * h, -lag - h), min(centre + 2 * h, MAX_DELAY) + 1e-12, 0.25 * h)
+
+
+def settle(em: EquationModel, selected: Evaluation, trace: list[dict] | None = None) -> Evaluation:
+    """``selected`` with the latency decided jointly with the arm's linear parameters (see the module docstring)."""
+    ctx = em.ctx
+    if em.equation != ARM or not ctx.prep.commanded or em.n_rows < 20 * em.th.n_blocks:
+        return selected
+    h, lag = ctx.prep.dt, ctx.prep.command_lag
+    spec = _without_latency(selected.spec)
+    null_delay = ctx.base_path.delay
+    value, folds, f = null_delay, np.zeros(0), None
+    for i in range(PASSES):
+        base = spec
+
+        def stats_of(v: float, base: Spec = base):
+            return em.stats(base.with_value("delay", v))[0]
+
+        if i == 0:  # coarse, then fine around the coarse optimum
+            _, value, _ = fit_profiled(stats_of, _grid(em))
+        f, value, folds = fit_profiled(stats_of, _grid(em, value))
+        spec = spec.with_value("delay", value)
+        if "arm_inertia" in spec.effects and i < PASSES - 1:
+            spec = em.evaluate_with(spec.without("arm_inertia"), "arm_inertia").spec
+    at_config = em.evaluate(spec.with_value("delay", null_delay))
+    B = len(folds)
+    se = max(float(np.sqrt((B - 1) / B * np.sum((folds - folds.mean()) ** 2))), 0.05 * h)
+    cv = f.cv_sse if f is not None else at_config.cv
+    gain = (at_config.cv - cv) / at_config.cv if at_config.cv else 0.0
+    total = lag + value
+    far = abs(value - null_delay) >= MIN_TICKS * h
+    causal = total >= -0.5 * h
+    n_eff = max(em.n_rows / em.corr_len, 10.0)
+    lr = n_eff * float(np.log(at_config.fit.sse / f.sse)) if f is not None and f.sse > 0 else 0.0
+    ok = (far and causal and gain >= 2 * em.th.min_gain and (lr >= em.th.t_min**2 or gain >= em.th.strong_gain)
+          and at_config.cv - cv > em.bic_penalty(1, cv))
+    name = "input_delay" if value > 0 else "command_latency"
+    if trace is not None:
+        trace.append({"step": len(selected.spec.effects), "candidate": "latency (joint)", "joint": True,
+                      "cv_gain": gain, "t": abs(value - null_delay) / se, "params": {"total": total, "se": se, "lr": lr},
+                      "accepted": ok, "ok": ok, "value": value})
+    if not ok:
+        if not any(n in selected.spec.effects for n in LATENCY_EFFECTS):
+            return selected  # the config's latency stands, and so does the selected model
+        spec = spec.with_value("delay", null_delay)
+        if "arm_inertia" in spec.effects:  # ΔJ given the config's latency
+            spec = em.evaluate_with(spec.without("arm_inertia"), "arm_inertia").spec
+        out = em.evaluate(spec)
+        kept = [k for k in out.spec.effects if CANDIDATES[k].nonlinear]  # their t and se come from their profiles
+        out.t_stat.update({k: selected.t_stat[k] for k in kept if k in selected.t_stat})
+        out.se.update({k: selected.se[k] for k in kept if k in selected.se})
+        return out
+    spec = spec.with_effect(name).with_value("delay", value)
+    out = em.evaluate(spec)
+    out.t_stat[name] = abs(value - null_delay) / se
+    out.se[name] = {"delay": se}
+    kept = [k for k in out.spec.effects if CANDIDATES[k].nonlinear and k != name]
+    out.t_stat.update({k: selected.t_stat[k] for k in kept if k in selected.t_stat})
+    out.se.update({k: selected.se[k] for k in kept if k in selected.se})
+    return out
