@@ -26,20 +26,20 @@ def _case(shape: str, excitation: str, seed: int, effects: list[str]):
     return rig, diagnose(rec, rig, FAST)
 
 
-@pytest.mark.parametrize(("ticks", "within"), [(0.0, 0.5), (3.0, 1.0)])
-def test_latency_off_the_config_is_measured_next_to_wrong_gain_and_inertia(ticks: float, within: float) -> None:
+@pytest.mark.parametrize("ticks", [0.0, 3.0])
+def test_latency_off_the_config_is_measured_next_to_wrong_gain_and_inertia(ticks: float) -> None:
     """A QUBE-shaped DC-motor rig, torque per volt ×0.6 and arm inertia ×0.7, a chirp: the total latency (one tick in
-    the config) as command_latency when shorter, input_delay when longer; within half a tick when the command acts at
-    once. Three ticks come out 2.24 (a low bias of the profile on long latencies, also on the core suite's
-    input_delay cases and with a 13 ms kernel: not understood, docs/DIAGNOSE.md "What is weak"); the selection
-    alone reported 1.6 ticks here."""
+    the config) within half a tick, as command_latency when shorter, input_delay when longer, and the arm inertia
+    within 5 %. (Three ticks: the selection alone said 1.6; lag and ΔJ profiled one after the other, 2.24 with J 8 %
+    high — they trade phase, so they are profiled together.)"""
     rig = load_rig("qube_servo2")
     h = 1.0 / rig.control.rate_hz
     J = 0.7 * rig.plant.arm_inertia
     eff = ["input_gain.gain=0.6", f"arm_inertia.J={J:.4g}", "arm_viscous.Fv=0.0015", f"command_latency.delay={ticks * h}"]
     rig, d = _case("qube_servo2", "chirp", 901 + int(ticks), eff)
     found = {e.name: e.params for e in d.effects}
-    assert abs(_total_latency(rig, found) - ticks * h) < within * h, found
+    assert abs(_total_latency(rig, found) - ticks * h) < 0.5 * h, found
+    assert found["arm_inertia"]["J"] == pytest.approx(J, rel=0.05)
     assert ("command_latency" in found) == (ticks < 1) and ("input_delay" in found) == (ticks > 1), found
     row = next(r for r in d.equations["arm"].trace if r["candidate"] == "latency (joint)")
     assert row["accepted"] and row["params"]["se"] < 0.5 * h

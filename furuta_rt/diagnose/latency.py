@@ -5,7 +5,8 @@ gain, inertia and damping are in the model: the profile is then biased (a wrong 
 too) and its fold-wise optima scatter. This stage runs on the arm equation's final selected model: the *total*
 latency L (sample instant → torque acting) is profiled afresh on a grid from one tick below 0 to 50 ms, with every
 linear parameter refitted at each lag (the held command is a kernel integral at any lag, so each point is one
-least-squares fit) and the arm inertia change ΔJ re-profiled given the lag (coordinate descent, two passes).
+least-squares fit), ΔJ included as one more linear column (ID is linear in J: lag and inertia trade phase, so
+they are profiled together, not one after the other); ΔJ is then re-profiled in the selection's units at the lag.
 
 The latency is reported when it differs from the config's significantly: the optimum at least ``MIN_TICKS`` of a
 tick away, its held-out error (each block predicted at the lag best on the others) below the config's by ≥ 2·min_gain
@@ -21,16 +22,17 @@ removed (the config's latency stands).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
-from furuta_rt.diagnose.fitting import fit_profiled
+from furuta_rt.diagnose.fitting import Stats, fit, fit_profiled
 from furuta_rt.diagnose.library import ARM, CANDIDATES
 from furuta_rt.diagnose.select import EquationModel, Evaluation, Spec
 
 LATENCY_EFFECTS = ("input_delay", "command_latency")
 MIN_TICKS = 0.25  # a departure from the config's latency smaller than this is not named
 MAX_DELAY = 0.05  # s on top of the config's lag (as select.EquationModel.grid("delay"))
-PASSES = 2  # coordinate-descent passes (lag, then ΔJ given the lag)
 
 
 def _without_latency(spec: Spec) -> Spec:
@@ -58,31 +60,32 @@ def settle(em: EquationModel, selected: Evaluation, trace: list[dict] | None = N
     h, lag = ctx.prep.dt, ctx.prep.command_lag
     spec = _without_latency(selected.spec)
     null_delay = ctx.base_path.delay
-    value, folds, f = null_delay, np.zeros(0), None
-    for i in range(PASSES):
-        base = spec
+    joint_j = "arm_inertia" in spec.effects
+    # with ΔJ in the model, ΔJ as one more linear column (the arm's inverse dynamics is linear in J): the lag and ΔJ
+    # are profiled jointly, not by coordinate descent along their correlated valley
 
-        def stats_of(v: float, base: Spec = base):
-            return em.stats(base.with_value("delay", v))[0]
+    def stats_of(v: float) -> Stats:
+        at = spec.with_value("delay", v)
+        if not joint_j:
+            return em.stats(at)[0]
+        X, _ = em.design(replace(at, d_inertia=0.0))
+        return Stats.of(em.target(replace(at, d_inertia=0.0)), np.column_stack([X, -ctx.arm_dJ]), em.blocks)
 
-        if i == 0:  # coarse, then fine around the coarse optimum
-            _, value, _ = fit_profiled(stats_of, _grid(em))
-        f, value, folds = fit_profiled(stats_of, _grid(em, value))
-        spec = spec.with_value("delay", value)
-        if "arm_inertia" in spec.effects and i < PASSES - 1:
-            spec = em.evaluate_with(spec.without("arm_inertia"), "arm_inertia").spec
-    at_config = em.evaluate(spec.with_value("delay", null_delay))
+    _, value, _ = fit_profiled(stats_of, _grid(em))  # coarse, then fine around the coarse optimum
+    f, value, folds = fit_profiled(stats_of, _grid(em, value))
+    spec = spec.with_value("delay", value)
+    at_config_fit = fit(stats_of(null_delay))
     B = len(folds)
     se = max(float(np.sqrt((B - 1) / B * np.sum((folds - folds.mean()) ** 2))), 0.05 * h)
-    cv = f.cv_sse if f is not None else at_config.cv
-    gain = (at_config.cv - cv) / at_config.cv if at_config.cv else 0.0
+    cv, cv0 = f.cv_sse, at_config_fit.cv_sse
+    gain = (cv0 - cv) / cv0 if cv0 else 0.0
     total = lag + value
     far = abs(value - null_delay) >= MIN_TICKS * h
     causal = total >= -0.5 * h
     n_eff = max(em.n_rows / em.corr_len, 10.0)
-    lr = n_eff * float(np.log(at_config.fit.sse / f.sse)) if f is not None and f.sse > 0 else 0.0
+    lr = n_eff * float(np.log(at_config_fit.sse / f.sse)) if f.sse > 0 else 0.0
     ok = (far and causal and gain >= 2 * em.th.min_gain and (lr >= em.th.t_min**2 or gain >= em.th.strong_gain)
-          and at_config.cv - cv > em.bic_penalty(1, cv))
+          and cv0 - cv > em.bic_penalty(1, cv))
     name = "input_delay" if value > 0 else "command_latency"
     if trace is not None:
         trace.append({"step": len(selected.spec.effects), "candidate": "latency (joint)", "joint": True,
@@ -100,6 +103,8 @@ def settle(em: EquationModel, selected: Evaluation, trace: list[dict] | None = N
         out.se.update({k: selected.se[k] for k in kept if k in selected.se})
         return out
     spec = spec.with_effect(name).with_value("delay", value)
+    if joint_j:  # ΔJ in the selection's units (acceleration-weighted profile) at the lag found
+        spec = em.evaluate_with(spec.without("arm_inertia"), "arm_inertia").spec
     out = em.evaluate(spec)
     out.t_stat[name] = abs(value - null_delay) / se
     out.se[name] = {"delay": se}
