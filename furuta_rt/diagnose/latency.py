@@ -42,6 +42,22 @@ def _without_latency(spec: Spec) -> Spec:
     return spec
 
 
+def _backward(em: EquationModel, current: Evaluation, keep: str) -> Evaluation:
+    """The selection's backward pass on the model with the latency found: an effect that stood in for the wrong
+    latency (e.g. friction fitted to the phase error) and no longer lowers the held-out error by min_gain is dropped."""
+    changed = True
+    while changed and len(current.spec.effects) > 1:
+        changed = False
+        for name in current.spec.effects:
+            if name == keep:
+                continue
+            reduced = em.evaluate(current.spec.without(name))
+            if (reduced.cv - current.cv) / reduced.cv < em.th.min_gain:
+                current, changed = reduced, True
+                break
+    return current
+
+
 def _grid(em: EquationModel, centre: float | None = None) -> np.ndarray:
     """path.delay values (on top of the config's lag): totals from one tick below 0 to the lag + MAX_DELAY, one tick
     apart; with ``centre``, a quarter tick apart within two ticks of it."""
@@ -105,7 +121,7 @@ def settle(em: EquationModel, selected: Evaluation, trace: list[dict] | None = N
     spec = spec.with_effect(name).with_value("delay", value)
     if joint_j:  # ΔJ in the selection's units (acceleration-weighted profile) at the lag found
         spec = em.evaluate_with(spec.without("arm_inertia"), "arm_inertia").spec
-    out = em.evaluate(spec)
+    out = _backward(em, em.evaluate(spec), name)
     out.t_stat[name] = abs(value - null_delay) / se
     out.se[name] = {"delay": se}
     kept = [k for k in out.spec.effects if CANDIDATES[k].nonlinear and k != name]
