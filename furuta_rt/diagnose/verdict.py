@@ -378,6 +378,14 @@ def with_verdicts(located: str, res: dict, verdicts: dict[str, EquationVerdict])
 
 
 # ------------------------------------------------------------------------------ the summary line
+def percent(x: float) -> str:
+    """A share as a percentage: one decimal, or two significant digits below 0.1 % (an encoder's noise floor is
+    a few hundredths of a percent, which "0.0 %" would hide)."""
+    if not np.isfinite(x):
+        return "n/a"
+    return f"{100 * x:.2g} %" if 0 < abs(x) < 0.001 else f"{100 * x:.1f} %"
+
+
 def summary(verdicts: dict[str, EquationVerdict]) -> str:
     """One line: each equation's verdict with its numbers; for a remainder, what it follows and the first cause."""
     parts = []
@@ -386,7 +394,7 @@ def summary(verdicts: dict[str, EquationVerdict]) -> str:
         if v.verdict == "not_assessed":
             parts.append(f"{name} not assessed ({v.reason})")
             continue
-        pct = lambda x: f"{100 * x:.1f} %"  # noqa: E731
+        pct = percent
         if v.verdict == "consistent":
             parts.append(f"{name} consistent with the nominal model (residual {pct(v.residual_nominal)}, noise floor "
                          f"{pct(v.noise_floor)})")
