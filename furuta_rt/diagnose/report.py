@@ -66,7 +66,9 @@ def text(d: Diagnosis) -> list[str]:
         lines.append(f"ambiguous: {a['effects'][0]} or {alt['name']} ({fmt_params(alt['params'])}): {a['reason']}; "
                      f"to separate them: {a['experiment']}")
     for a in d.lookalikes:
-        lines.append(f"told apart: {a['effects'][0]} rather than {a['effects'][1]}: {a['reason']}")
+        head = f"{a['effects'][0]} rather than {a['effects'][1]}"
+        reason = a["reason"].removeprefix(head + ": ")  # the κ test's reason already starts with it
+        lines.append(f"told apart: {head}: {reason}")
     lines.append(f"located: {d.located}")
     f = d.fit
     lines.append(f"fit: {f['verdict']} ({f['metric']}; {f['windows']} windows of {f['horizon_s']:.2f} s, paired t = "
