@@ -427,6 +427,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     found = gated.found
     dropped = {e["name"] for e in gated.not_predictive}
     ambiguities = [a for a in ambiguities if a["effects"][0] not in dropped]
+    lookalikes = [a for a in lookalikes if a.get("reported") not in dropped]  # no look-alike of a removed effect
     try:
         effects_of(found)
     except ValueError as err:  # e.g. a combination the effects vocabulary forbids
