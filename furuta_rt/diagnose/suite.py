@@ -23,6 +23,7 @@ import hashlib
 import json
 import pickle
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -79,25 +80,35 @@ def reference_signal(kind: str | None, n: int, rate_hz: float, seed: int) -> np.
     raise ValueError(f"unknown reference {kind!r}")
 
 
-def generate(case: Case, rig: RigConfig, cache: Path | None = None) -> Recording:
-    """The case's recording (from the cache when there)."""
-    path = cache / f"{case.key()}.pkl" if cache else None
+def cached(key: str, cache: Path | None, make: Callable[[], Recording]) -> Recording:
+    """The recording stored under ``key`` in ``cache``, else ``make()`` (stored there when a cache is given)."""
+    path = cache / f"{key}.pkl" if cache else None
     if path is not None and path.exists():
         with path.open("rb") as fh:
             return pickle.load(fh)
-    n = round(case.duration * rig.control.rate_hz)
-    ref = reference_signal(case.reference, n, rig.control.rate_hz, case.seed)
-    true, host, coupling = true_rig(rig, case.rig_change)
-    rec = run_closed_loop(true, case.duration, effects=effects_from_assignments(list(case.effects)), seed=case.seed,
-                          reference=ref, host_calibration=host, coupling=coupling)
-    if ref is not None:
-        rec.extra["phi_ref"] = ref
-    rec.meta["case"] = case.name
+    rec = make()
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         with path.open("wb") as fh:
             pickle.dump(rec, fh)
     return rec
+
+
+def generate(case: Case, rig: RigConfig, cache: Path | None = None) -> Recording:
+    """The case's recording (from the cache when there)."""
+
+    def make() -> Recording:
+        n = round(case.duration * rig.control.rate_hz)
+        ref = reference_signal(case.reference, n, rig.control.rate_hz, case.seed)
+        true, host, coupling = true_rig(rig, case.rig_change)
+        rec = run_closed_loop(true, case.duration, effects=effects_from_assignments(list(case.effects)),
+                              seed=case.seed, reference=ref, host_calibration=host, coupling=coupling)
+        if ref is not None:
+            rec.extra["phi_ref"] = ref
+        rec.meta["case"] = case.name
+        return rec
+
+    return cached(case.key(), cache, make)
 
 
 def true_rig(rig: RigConfig, change: tuple[tuple[str, float], ...]) -> tuple[RigConfig, Calibration | None,
@@ -465,18 +476,13 @@ def generate_realistic(case: RealisticCase, cache: Path | None = None) -> Record
     """The case's recording (from the cache when there)."""
     from furuta_rt.diagnose.suite_realistic import simulate
 
-    path = cache / f"{case.key()}.pkl" if cache else None
-    if path is not None and path.exists():
-        with path.open("rb") as fh:
-            return pickle.load(fh)
-    rec = simulate(load_rig(case.shape), case.shape, effects_from_assignments(list(case.effects)), case.excitation,
-                   case.duration, case.seed)
-    rec.meta["case"] = case.name
-    if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with path.open("wb") as fh:
-            pickle.dump(rec, fh)
-    return rec
+    def make() -> Recording:
+        rec = simulate(load_rig(case.shape), case.shape, effects_from_assignments(list(case.effects)),
+                       case.excitation, case.duration, case.seed)
+        rec.meta["case"] = case.name
+        return rec
+
+    return cached(case.key(), cache, make)
 
 
 def arm_combinations(rig: RigConfig, gain: float, J: float, Fv: float) -> dict[str, float]:
