@@ -4,6 +4,7 @@ See PROTOCOL.md in this package for the specification. The C codec for the firmw
 lives in ``c/``; ``vectors/golden.json`` holds the frames both codecs are tested against.
 """
 
+from .acceptance import command_accepted, zero_answer
 from .framing import (
     CRC_INIT,
     FRAME_DELIMITER,
@@ -85,6 +86,7 @@ __all__ = [
     "actuator_to_counts",
     "cobs_decode",
     "cobs_encode",
+    "command_accepted",
     "compute_schema_hash",
     "counts_to_actuator",
     "crc16",
@@ -96,4 +98,5 @@ __all__ = [
     "try_decode_frame",
     "verify_hello_ack",
     "wrap_delta",
+    "zero_answer",
 ]

@@ -17,6 +17,7 @@ import os
 import signal
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 from furuta_rt.errors import UserError
@@ -55,6 +56,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the pty (removed on exit)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds of wall time")
     p.add_argument("--stats-json", metavar="FILE", help="write the final statistics as JSON to FILE")
+    p.add_argument("--exit-with-fd", type=int, metavar="FD",
+                   help="stop (as on SIGINT) when file descriptor FD, a pipe whose write end the launcher holds, "
+                        "reaches end of file: the mock then ends with its launcher, even when that is SIGKILLed")
     return p
 
 
@@ -89,6 +93,22 @@ def _make_link(link: str, port: str) -> Path:
     return path
 
 
+def _watch_launcher(fd: int, on_gone: Callable[[], None]) -> None:
+    """Call ``on_gone`` when the pipe ``fd`` reaches end of file (every write end closed: the launcher is gone)."""
+    try:
+        os.fstat(fd)
+    except OSError:
+        raise UserError(f"--exit-with-fd {fd}: not an open file descriptor") from None
+
+    def watch() -> None:
+        with contextlib.suppress(OSError):
+            while os.read(fd, 64):
+                pass
+        on_gone()
+
+    threading.Thread(target=watch, name="hil-mock launcher watch", daemon=True).start()
+
+
 def serve(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
     try:
@@ -96,6 +116,8 @@ def serve(args: argparse.Namespace) -> int:
     except ValueError as err:
         raise UserError(str(err)) from None
     link = _make_link(args.link, device.port) if args.link else None
+    if args.exit_with_fd is not None:
+        _watch_launcher(args.exit_with_fd, device.request_stop)
 
     def on_stop(signum: int, frame: object) -> None:
         device.request_stop()

@@ -16,7 +16,12 @@ quantisation:
 The rules are those of firmware_protocol/PROTOCOL.md §5–7. Where the spec leaves a choice:
 
 * The plant is held at its initial state until the first accepted HELLO, then runs in device time
-  for good. Reconnects, STOP and resets do not rewind it: it is a physical pendulum.
+  for good: STOP, a hang-up or a reset leave it unactuated (the pendulum falls) and do not rewind
+  the clock. A HELLO to an idle device (a new host session) puts the rig back at its initial state
+  (``initial_theta``, at rest, arm at 0, the noise seed from the start), as the operator of a real rig
+  lifts the pendulum before starting a run: without that, every host after the first found it hanging
+  with θ's ADC at its rail (ADC_OVERRANGE) and never armed. A HELLO while streaming (the host's retry,
+  a second host) does not touch the plant.
 * "Arrival" of a COMMAND (watchdog) is quantised to the tick that reads it. The watchdog trips at
   the first tick at least ``watchdog_ms`` after the last accepted COMMAND (or the HELLO).
 * The HELLO_ACK is preceded by one 0x00 (§2.1: flush the peer's partial frame).
@@ -44,9 +49,9 @@ from firmware_protocol import (
     StatusFlags,
     Stop,
     StreamDecoder,
+    command_accepted,
     counts_to_actuator,
     encode,
-    wrap_delta,
 )
 from furuta_rt.config import RigConfig
 from furuta_rt.model.rig import RigModel
@@ -103,10 +108,7 @@ class Firmware:
         self.substep_hz = settings.substep_hz
         # One simulator "tick" is one physics substep, so every device rate maps onto the same substep grid;
         # with substep_hz a multiple of the rate this is step for step Simulator(model, rate, substep_hz).
-        self.sim = Simulator(
-            model, rate_hz=self.substep_hz, substep_hz=self.substep_hz, seed=settings.seed,
-            x0=(settings.initial_theta, 0.0, 0.0, 0.0),
-        )
+        self.sim = self._new_plant()
         self.full_scale = _f32(rig.actuator.limit)
         self.actuator_kind = ActuatorKind.TORQUE_NM if rig.actuator.kind == "torque" else ActuatorKind.VOLTAGE_V
         self.default_rate_hz = rate_hz
@@ -127,9 +129,16 @@ class Firmware:
         self.status_sent = 0
         self.reboots = 0
         self.hangups = 0
+        self.replacements = 0  # new sessions that found the rig put back at its initial state
         self._boot()
 
     # ----------------------------------------------------------------- state
+    def _new_plant(self) -> Simulator:
+        """The rig at its initial state, at rest."""
+        s = self.settings
+        return Simulator(self.model, rate_hz=self.substep_hz, substep_hz=self.substep_hz, seed=s.seed,
+                         x0=(s.initial_theta, 0.0, 0.0, 0.0))
+
     def _boot(self) -> None:
         """Power-up state: default configuration, idle, output zero, no fault."""
         self.rate_hz = self.default_rate_hz
@@ -207,21 +216,24 @@ class Firmware:
             elif t is Config:
                 self._on_config(msg)  # type: ignore[arg-type]
             elif t is Stop:
-                self._go_idle()
+                self._on_stop()
             # device → host types arriving here (a loopback, a confused host) are ignored
 
     def _on_command(self, msg: Command) -> None:
         """§6: accepted iff not newer than the last SAMPLE sent and newer than the last applied/accepted."""
         self.commands_rx += 1
-        last_sent = (self.seq - 1) & _MASK32
+        last_sent = (self.seq - 1) & _MASK32 if self.seq else None
         ref = self._new[0] if self._new is not None else self._last_applied
-        if (not self.streaming or self.seq == 0 or wrap_delta(msg.seq, last_sent) > 0
-                or (ref is not None and wrap_delta(msg.seq, ref) <= 0)):
+        if not self.streaming or not command_accepted(msg.seq, last_sent, ref):
             self.commands_discarded += 1
             return
         self._new = (msg.seq, msg.command, msg.flags)
         if msg.seq == last_sent:
             self._answered = True
+
+    def _on_stop(self) -> None:
+        """§4 STOP: output zero at once, idle until a new HELLO."""
+        self._go_idle()
 
     def _on_hello(self, msg: Hello, later_frames: int = 0) -> None:
         self.tx.append(b"\x00" + encode(self.hello_ack(msg.nonce)))
@@ -232,6 +244,9 @@ class Firmware:
         self.handshakes += 1
         if self.plant_start_ns is None:
             self.plant_start_ns = self.clock_ns
+        elif not self.streaming:  # a new host session: the rig is put back at its initial state
+            self.sim = self._new_plant()
+            self.replacements += 1
         self._go_idle()  # restart the session: output zero, faults kept
         self.streaming = True
         self.seq = 0

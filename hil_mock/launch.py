@@ -1,7 +1,14 @@
-"""Run ``hil-mock`` as a subprocess (tests, ``furuta-rt run --mock``) and wait for its port."""
+"""Run ``hil-mock`` as a subprocess (tests, ``furuta-rt run --mock``) and wait for its port.
+
+The child ends with its parent: it gets the read end of a pipe (``--exit-with-fd``) whose only write end
+stays in this process, so when this process dies, however (SIGKILL included), the child reads end of file,
+zeroes its actuator, closes its pty and exits.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import os
 import select
 import signal
 import subprocess
@@ -10,6 +17,9 @@ import time
 from collections.abc import Sequence
 
 from hil_mock.cli import SERVING_PREFIX
+
+_LIFELINES: dict[int, int] = {}
+"""pid of each mock started here → the write end of its lifeline pipe."""
 
 
 class MockStartError(RuntimeError):
@@ -22,10 +32,18 @@ def start_mock_subprocess(args: Sequence[str] = (), timeout: float = 30.0) -> tu
     stdout and stderr are pipes (text). Stop it with :func:`stop_mock_subprocess`, which returns its
     statistics. Raises MockStartError with hil-mock's own error line if it fails to start.
     """
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "hil_mock", "--pty", *args],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
+    watch_r, watch_w = os.pipe()  # both close-on-exec: only the child's copy of watch_r crosses exec
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "hil_mock", "--pty", "--exit-with-fd", str(watch_r), *args],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, pass_fds=(watch_r,),
+        )
+    except BaseException:
+        os.close(watch_w)
+        raise
+    finally:
+        os.close(watch_r)
+    _LIFELINES[proc.pid] = watch_w
     assert proc.stdout is not None and proc.stderr is not None
     deadline = time.monotonic() + timeout
     while True:
@@ -33,6 +51,7 @@ def start_mock_subprocess(args: Sequence[str] = (), timeout: float = 30.0) -> tu
         if remaining <= 0:
             proc.kill()
             _, err = proc.communicate()
+            _cut_lifeline(proc)
             raise MockStartError(f"hil-mock printed no port within {timeout:g} s: {err.strip()}")
         ready, _, _ = select.select([proc.stdout], [], [], min(remaining, 0.5))
         if ready:
@@ -41,6 +60,7 @@ def start_mock_subprocess(args: Sequence[str] = (), timeout: float = 30.0) -> tu
                 return proc, line[len(SERVING_PREFIX):].strip()
             if not line:  # EOF: it exited
                 _, err = proc.communicate()
+                _cut_lifeline(proc)
                 raise MockStartError(f"hil-mock exited with code {proc.returncode}: {err.strip()}")
 
 
@@ -53,4 +73,14 @@ def stop_mock_subprocess(proc: subprocess.Popen[str], timeout: float = 10.0) -> 
     except subprocess.TimeoutExpired:
         proc.kill()
         _, err = proc.communicate()
+    finally:
+        _cut_lifeline(proc)
     return err
+
+
+
+def _cut_lifeline(proc: subprocess.Popen[str]) -> None:
+    fd = _LIFELINES.pop(proc.pid, None)
+    if fd is not None:
+        with contextlib.suppress(OSError):
+            os.close(fd)

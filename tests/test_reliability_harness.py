@@ -66,16 +66,25 @@ class ListSink:
 
 @dataclass
 class PtyDevice:
-    """Writes ``pieces`` (wire bytes) to a raw pty one per ``period`` s and decodes what the host sends."""
+    """Writes ``pieces`` (wire bytes) to a raw pty one per ``period`` s and decodes what the host sends.
+    COMMANDs are accepted by PROTOCOL.md §6 (firmware_protocol.command_accepted, the rule of hil_mock's
+    firmware) against the SAMPLEs that left intact; a SAMPLE seq going back is a new session; STOP
+    ends the session. ``acted`` lists what took effect, in order: ("command", Command) | ("stop", Stop)."""
 
     pieces: list[bytes]
     period: float = 0.002
     commands: list[fp.Command] = field(default_factory=list)
+    accepted: list[bool] = field(default_factory=list)
     other: list[fp.Message] = field(default_factory=list)
+    acted: list[tuple[str, fp.Message]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.fd, self.port = open_raw_pty()
         self.decoder = fp.StreamDecoder()
+        self._sent = fp.StreamDecoder()  # what left the device intact
+        self._last_sent: int | None = None
+        self._last_accepted: int | None = None
+        self._streaming = True
         self.done = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
@@ -92,7 +101,33 @@ class PtyDevice:
             if not data:
                 return
             for msg in self.decoder.feed(data):
-                (self.commands if isinstance(msg, fp.Command) else self.other).append(msg)
+                if isinstance(msg, fp.Command):
+                    ok = self._streaming and fp.command_accepted(msg.seq, self._last_sent, self._last_accepted)
+                    self.commands.append(msg)
+                    self.accepted.append(ok)
+                    if ok:
+                        self._last_accepted = msg.seq
+                        self.acted.append(("command", msg))
+                    continue
+                self.other.append(msg)
+                if isinstance(msg, fp.Stop):
+                    self._streaming = False
+                    self.acted.append(("stop", msg))
+
+    def _note_sent(self, piece: bytes) -> None:
+        for msg in self._sent.feed(piece):
+            if isinstance(msg, fp.Sample):
+                if self._last_sent is not None and fp.wrap_delta(msg.seq, self._last_sent) <= 0:
+                    self._last_accepted = None  # seq went back: the device restarted its session
+                self._last_sent = msg.seq
+
+    @property
+    def output_zero(self) -> bool:
+        """The host's last frame that took effect zeroes the actuator (STOP, or u = 0 / ENABLE clear)."""
+        if not self.acted:
+            return True
+        kind, msg = self.acted[-1]
+        return kind == "stop" or (msg.command == 0 and not msg.flags & fp.CommandFlags.ENABLE)  # type: ignore[attr-defined]
 
     def _run(self) -> None:
         # wait until the host has the port open (reads stop failing with EIO)
@@ -106,6 +141,7 @@ class PtyDevice:
             except OSError:
                 time.sleep(0.005)
         for piece in self.pieces:
+            self._note_sent(piece)
             view = memoryview(piece)
             while view:
                 try:
@@ -302,20 +338,31 @@ class _Recorder:
         self.device = device
         fw = device.firmware
         self.commands: list[tuple[int, int, int, int, int, int]] = []  # wall ns, dev ns, session, seq, counts, flags
+        self.accepted: list[bool] = []  # per COMMAND: accepted by the firmware (PROTOCOL.md §6)
+        self.stops: list[tuple[int, int]] = []  # wall ns, dev ns of each STOP received
         self.outputs: list[tuple[int, int, float]] = [(time.time_ns(), fw.clock_ns, fw.output)]  # wall ns, dev ns, u
+        self.output_ticks: list[int] = [fw.seq]  # per output change: seq of the next SAMPLE (the tick it holds until)
         self.events: list[tuple[int, int, str]] = []  # wall ns, dev ns, what
         self.samples_intact: list[tuple[int, int]] = []  # (session, seq) of SAMPLEs that left the link unharmed
         self.samples_damaged: list[tuple[int, int]] = []
-        on_command, set_output, on_hello = fw._on_command, fw._set_output, fw._on_hello
+        on_command, set_output, on_hello, on_stop = fw._on_command, fw._set_output, fw._on_hello, fw._on_stop
         reboot, hangup, skip = fw.reboot, fw.hangup, fw.skip
 
         def _on_command(msg: fp.Command, *args: Any, **kwargs: Any) -> Any:
             self.commands.append((time.time_ns(), fw.clock_ns, fw.handshakes, msg.seq, msg.command, msg.flags))
-            return on_command(msg, *args, **kwargs)
+            discarded = fw.commands_discarded
+            out = on_command(msg, *args, **kwargs)
+            self.accepted.append(fw.commands_discarded == discarded)
+            return out
+
+        def _on_stop(*args: Any, **kwargs: Any) -> Any:
+            self.stops.append((time.time_ns(), fw.clock_ns))
+            return on_stop(*args, **kwargs)
 
         def _set_output(u: float, *args: Any, **kwargs: Any) -> Any:
             if u != fw.output:
                 self.outputs.append((time.time_ns(), fw.clock_ns, u))
+                self.output_ticks.append(fw.seq)
             return set_output(u, *args, **kwargs)
 
         def _on_hello(*args: Any, **kwargs: Any) -> Any:
@@ -335,7 +382,7 @@ class _Recorder:
             self.events.append((time.time_ns(), fw.clock_ns, f"skip {periods}"))
             return skip(periods, *args, **kwargs)
 
-        fw._on_command, fw._set_output, fw._on_hello = _on_command, _set_output, _on_hello
+        fw._on_command, fw._set_output, fw._on_hello, fw._on_stop = _on_command, _set_output, _on_hello, _on_stop
         fw.reboot, fw.hangup, fw.skip = _reboot, _hangup, _skip
         link = device.link
         tx = link.tx
@@ -359,7 +406,8 @@ class _Recorder:
         device.link = _Link()
 
     def as_dict(self) -> dict[str, Any]:
-        return {"commands": self.commands, "outputs": self.outputs, "events": self.events,
+        return {"commands": self.commands, "accepted": self.accepted, "stops": self.stops,
+                "outputs": self.outputs, "events": self.events,
                 "samples_intact": self.samples_intact, "samples_damaged": self.samples_damaged,
                 "stats": self.device.stats.as_dict()}
 
@@ -393,6 +441,8 @@ def recording_mock_main(argv: list[str]) -> int:
 @dataclass
 class MockRecord:
     commands: list[tuple[int, int, int, int, int, int]]
+    accepted: list[bool]
+    stops: list[tuple[int, int]]
     outputs: list[tuple[int, int, float]]
     events: list[tuple[int, int, str]]
     samples_intact: list[tuple[int, int]]
@@ -418,6 +468,18 @@ class MockRecord:
     @property
     def last_command(self) -> tuple[int, int, int, int, int, int]:
         return self.commands[-1]
+
+    def assert_ends_safe(self) -> None:
+        """The actuator output is zero at the end, and the host's last frame that took effect zeroes it: a
+        STOP after the last accepted COMMAND, or an accepted COMMAND with u = 0 and ENABLE clear. A
+        COMMAND the device discarded (PROTOCOL.md §6) counts for nothing."""
+        assert self.final_output == 0.0, f"the actuator ends at {self.final_output}"
+        acted = [c for c, ok in zip(self.commands, self.accepted, strict=True) if ok]
+        last = acted[-1] if acted else None
+        if self.stops and (last is None or self.stops[-1][0] >= last[0]):
+            return
+        assert last is not None and last[4] == 0 and not last[5] & fp.CommandFlags.ENABLE, (
+            f"the last COMMAND the device accepted, {last}, is not u = 0 / disabled and no STOP followed it")
 
 
 class MockProcess:
@@ -455,7 +517,8 @@ class MockProcess:
             _, self.stderr = self.proc.communicate()
         data = json.loads(self.record_path.read_text())
         return MockRecord(
-            commands=[tuple(c) for c in data["commands"]], outputs=[tuple(o) for o in data["outputs"]],
+            commands=[tuple(c) for c in data["commands"]], accepted=data["accepted"],
+            stops=[tuple(t) for t in data["stops"]], outputs=[tuple(o) for o in data["outputs"]],
             events=[tuple(e) for e in data["events"]], samples_intact=[tuple(s) for s in data["samples_intact"]],
             samples_damaged=[tuple(s) for s in data["samples_damaged"]], stats=data["stats"],
         )

@@ -112,7 +112,7 @@ def test_disk_full_while_logging_keeps_the_pendulum_safe(tmp_path: Path) -> None
     assert path.stat().st_size <= limit
     # the pendulum was kept safe whatever happened to the log: balancing throughout, zero at the end
     assert rec.final_output == 0.0
-    assert rec.last_command[4] == 0 and not rec.last_command[5] & 1
+    rec.assert_ends_safe()
     assert rec.stats["watchdog_trips"] == 0
     # the log up to the failure reads back (our reader and the independent one agree)
     log = read_log(path)

@@ -43,8 +43,8 @@ def test_silent_device_trips_link_loss_within_two_periods() -> None:
     assert len(trip_events) == 1 and "link loss" in trip_events[0][2]
     waited_s = (trip_events[0][0] - ticks[-1][I_WALL]) * 1e-9
     assert periods / RATE * 0.9 <= waited_s < periods / RATE + 0.05, f"tripped {waited_s * 1e3:.1f} ms after the last SAMPLE"
-    last = dev.commands[-1]
-    assert last.command == 0 and not last.flags & ENABLE
+    assert dev.output_zero and dev.acted[-1][0] == "stop", "the run ends with STOP (its last SAMPLE was answered)"
+    assert all(dev.accepted), "no COMMAND the device discards (PROTOCOL.md §6)"
 
 
 def test_seq_restart_mid_stream_trips_instead_of_driving_the_new_session() -> None:

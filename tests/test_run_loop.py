@@ -38,8 +38,11 @@ RATE = 500
 
 class SimDevice(HardwareInterface):
     """The core Simulator behind the HardwareInterface, with the firmware's tick order: at tick k the
-    latest COMMAND received (answering k−1) sets the output, SAMPLE k is taken, the plant advances.
-    ``bursts[seq] = n`` delivers n samples at once (a host stall); ``silent_after`` ends the stream."""
+    newest accepted COMMAND (answering ≤ k−1) sets the output, SAMPLE k is taken, the plant advances.
+    COMMANDs are accepted by PROTOCOL.md §6 through firmware_protocol.command_accepted (the rule
+    hil_mock's firmware uses); STOP zeroes the output at once. ``stop()`` sends what
+    SerialHardware.stop sends (``zero_answer``, then STOP). ``bursts[seq] = n`` delivers n samples at
+    once (a host stall); ``silent_after`` ends the stream."""
 
     def __init__(self, rig: RigConfig, *, x0: tuple[float, ...] = (0.05, 0.0, 0.0, 0.0), bursts: dict[int, int] | None = None,
                  silent_after: int | None = None, status: dict[int, int] | None = None, on_read: Any = None) -> None:
@@ -51,16 +54,27 @@ class SimDevice(HardwareInterface):
         self.status = status or {}
         self.on_read = on_read
         self.seq = 0
-        self.cmd: tuple[int, int, int] | None = None
+        self.cmd: tuple[int, int, int] | None = None  # newest accepted COMMAND
+        self.stopped = False
+        self.written: int | None = None  # host side: seq of the last COMMAND written
+        self.outputs: list[tuple[int, float]] = []  # (tick, output applied at that tick)
         self.queue: deque[Sample] = deque()
-        self.journal: list[tuple] = []  # ("write", seq, counts, flags) | ("stop",) | what the sinks add
+        self.journal: list[tuple] = []  # ("write", seq, counts, flags, accepted) | ("stop",) | what the sinks add
 
     def handshake(self, rate_hz: int, watchdog_ms: int) -> Any:  # pragma: no cover - not used by the loop
         raise NotImplementedError
 
-    def _tick(self) -> Sample:
+    @property
+    def next_output(self) -> float:
+        """The output the device drives from its next tick on (STOP: zero at once)."""
         cmd = self.cmd
-        u = counts_to_actuator(cmd[1], self.full_scale) if cmd is not None and cmd[2] & ENABLE else 0.0
+        if self.stopped or cmd is None or not cmd[2] & ENABLE:
+            return 0.0
+        return counts_to_actuator(cmd[1], self.full_scale)
+
+    def _tick(self) -> Sample:
+        u = self.next_output
+        self.outputs.append((self.seq, u))
         raw = self.sim.sample()
         s = Sample(self.seq, (self.seq * self.period_us) & 0xFFFFFFFF, raw.theta_adc, raw.theta_dot_adc, raw.phi_count,
                    self.status.get(self.seq, 0))
@@ -73,7 +87,7 @@ class SimDevice(HardwareInterface):
         if self.on_read is not None:
             self.on_read(self)
         if not self.queue:
-            if self.silent_after is not None and self.seq >= self.silent_after:
+            if self.stopped or (self.silent_after is not None and self.seq >= self.silent_after):
                 return None
             for _ in range(self.bursts.get(self.seq, 1)):
                 self.queue.append(self._tick())
@@ -85,12 +99,23 @@ class SimDevice(HardwareInterface):
         return len(self.queue)
 
     def write(self, seq: int, counts: int, flags: int) -> None:
-        self.journal.append(("write", seq, counts, flags))
-        self.cmd = (seq, counts, flags)
+        last_sent = self.seq - 1 if self.seq else None
+        ok = not self.stopped and fp.command_accepted(seq, last_sent, None if self.cmd is None else self.cmd[0])
+        self.journal.append(("write", seq, counts, flags, ok))
+        self.written = seq
+        if ok:
+            self.cmd = (seq, counts, flags)
 
-    def stop(self) -> None:
-        self.journal.append(("write", self.seq - 1, 0, 0))
+    def stop(self) -> str | None:
+        if self.stopped:
+            return None
+        newest = self.queue[-1].seq if self.queue else (self.seq - 1 if self.seq else None)
+        seq = fp.zero_answer(newest, self.written)
+        if seq is not None:
+            self.write(seq, 0, 0)
         self.journal.append(("stop",))
+        self.stopped = True
+        return None
 
     def close(self) -> None:
         pass
@@ -107,18 +132,23 @@ class SimDevice(HardwareInterface):
 
 class JournalSink:
     """Logger/dashboard queue stand-in that writes into the device's journal (to check the order of
-    commands and logging); ``full_every`` makes every n-th put raise queue.Full."""
+    commands and logging), with the device's ``next_output`` at that moment; ``full_every`` makes
+    every n-th put raise queue.Full, ``fail_at`` makes that put raise RuntimeError (a broken queue)."""
 
-    def __init__(self, journal: list[tuple], full_every: int = 0) -> None:
-        self.journal = journal
+    def __init__(self, dev: SimDevice, full_every: int = 0, fail_at: int = 0) -> None:
+        self.dev = dev
+        self.journal = dev.journal
         self.full_every = full_every
+        self.fail_at = fail_at
         self.puts = 0
 
     def put_nowait(self, item: Any) -> None:
         self.puts += 1
         if self.full_every and self.puts % self.full_every == 0:
             raise queue.Full
-        self.journal.append(("log", item))
+        if self.puts == self.fail_at:
+            raise RuntimeError("logger queue closed")
+        self.journal.append(("log", item, self.dev.next_output))
 
     def items(self) -> list[tuple]:
         return [e[1] for e in self.journal if e[0] == "log"]
@@ -131,16 +161,16 @@ class JournalSink:
 
 
 def make_loop(rig: RigConfig, dev: SimDevice, *, duration: float | None = 2.0, gains: list[float] | None = None,
-              max_overruns: int = 5, full_every: int = 0,
+              max_overruns: int = 5, full_every: int = 0, fail_at: int = 0,
               controller: Controller | None = None) -> tuple[ControlLoop, JournalSink]:
     limits = SupervisorLimits.from_config(rig.safety, RATE)
     limits = SupervisorLimits(limits.theta_limit, limits.phi_limit, limits.arm_theta, max_overruns, limits.settle_ticks)
-    sink = JournalSink(dev.journal, full_every)
+    sink = JournalSink(dev, full_every, fail_at)
     loop = ControlLoop(
         dev, controller or Controller.from_rig(rig, gains=gains), Supervisor(limits),
         LoopSettings(rate_hz=RATE, duration=duration, link_timeout_s=0.004),
         full_scale=rig.actuator.limit, calibration=RigModel.from_config(rig).calibration, log=sink,
-        on_event=lambda level, msg: dev.journal.append(("print", level, msg)),
+        on_event=lambda level, msg: dev.journal.append(("print", level, msg, dev.next_output)),
     )
     return loop, sink
 
@@ -168,13 +198,14 @@ def test_balances_logs_every_tick_and_replays_bit_identically(rig: RigConfig) ->
     assert np.abs(theta[-RATE:]).max() < 0.01, "balanced in the last second"
     # commands: one per tick, ENABLE exactly while balancing, counts = the logged u
     writes = dev.writes
-    assert [w[1] for w in writes[:-1]] == list(range(3 * RATE))
-    for rec, (_, _, counts, flags) in zip(ticks, writes, strict=False):
+    assert [w[1] for w in writes] == list(range(3 * RATE)) and all(w[4] for w in writes), "all accepted (§6)"
+    for rec, (_, _, counts, flags, _) in zip(ticks, writes, strict=True):
         balancing = STATE_NAMES[rec[F["state"]]] == "balancing"
         assert bool(flags & ENABLE) == balancing
         expected = round(rec[F["u"]] / rig.actuator.limit * COMMAND_FULL_SCALE)
         assert counts == (expected if balancing else 0) and (balancing or rec[F["u"]] == 0.0)
-    assert writes[-1][2:] == (0, 0) and dev.ops[-1] == ("stop",), "ends with u = 0, ENABLE clear, then STOP"
+    # the last SAMPLE got its ENABLE COMMAND: a zero answering it again would be discarded (§6); STOP zeroes
+    assert dev.ops[-1] == ("stop",) and dev.next_output == 0.0, "ends with STOP, the output zero"
     # the replay rule of furuta_rt.io.log_schema reproduces u and φ̂̇ bit for bit
     ctrl = Controller.from_rig(rig)
     for rec in ticks:
@@ -193,6 +224,61 @@ def test_balances_logs_every_tick_and_replays_bit_identically(rig: RigConfig) ->
     assert r.update_us.count == r.ticks and r.latency_us.count == r.ticks
 
 
+def _output_when_told(dev: SimDevice, needle: str) -> float:
+    """The device's output from its next tick on, when the event containing ``needle`` was first logged or
+    printed (the actuator must be zero by then: PROTOCOL.md §6 acceptance, or STOP)."""
+    for e in dev.journal:
+        if e[0] == "print" and needle in e[2]:
+            return e[3]
+        if e[0] == "log" and e[1][0] == "event" and needle in e[1][1][2]:
+            return e[2]
+    raise AssertionError(f"no event with {needle!r}")
+
+
+@pytest.mark.parametrize("how", ["operator stop", "theta trip", "link loss", "exception before the write",
+                                 "exception after the write"])
+def test_every_way_out_zeroes_the_device_before_it_is_told(rig: RigConfig, how: str) -> None:
+    """Issue 15 item 1, against a device that follows PROTOCOL.md §6 (firmware_protocol.command_accepted):
+    when the loop first logs or prints why it stops, the device already drives zero from its next tick on
+    (within one period of the SAMPLE that showed the fault), no COMMAND was discarded, and the device's
+    output stays zero to the end."""
+    kw: dict[str, Any] = {}
+    sim_kw: dict[str, Any] = {}
+    if how == "operator stop":
+        sim_kw["on_read"] = lambda d: d.seq == 300 and not d.queue and os.kill(os.getpid(), signal.SIGINT)
+        needle = "operator stop"
+    elif how == "theta trip":
+        kw["gains"] = [2.0, 0.3, 0.0, 0.0]  # too weak to hold it: it falls while driven, |θ| > 0.5 rad trips
+        needle = "→ tripped"
+    elif how == "link loss":
+        sim_kw["silent_after"] = 400
+        needle = "link loss"
+    elif how == "exception after the write":
+        kw["fail_at"] = 8  # the 8th logger put (a tick batch, after that tick's COMMAND) raises
+        needle = "RuntimeError"
+    else:
+        class Broken(Controller):
+            def update(self, m: Measurement) -> Any:
+                if m.t > 0.5:
+                    raise ZeroDivisionError("boom")
+                return super().update(m)
+
+        base = Controller.from_rig(rig)
+        kw["controller"] = Broken(base.gains, base.observer, base.compensator, base.u_limit)
+        needle = "ZeroDivisionError"
+    dev = SimDevice(rig, **sim_kw)
+    loop, _ = make_loop(rig, dev, duration=10.0, **kw)
+    if how.startswith("exception"):
+        with pytest.raises((RuntimeError, ZeroDivisionError)):
+            loop.run()
+    else:
+        loop.run()
+    assert any(u != 0.0 for _, u in dev.outputs), "the actuator was driven before"
+    assert _output_when_told(dev, needle) == 0.0, "the device still drives the actuator when the stop is told"
+    assert all(w[4] for w in dev.writes), f"COMMANDs discarded by §6: {[w for w in dev.writes if not w[4]]}"
+    assert dev.ops[-1] == ("stop",) and dev.next_output == 0.0
+
+
 def test_theta_trip_writes_zero_before_logging_or_printing(rig: RigConfig) -> None:
     """With zero gains the pendulum falls: |θ| > 0.5 rad trips; the zero command precedes the event."""
     dev = SimDevice(rig)
@@ -201,7 +287,7 @@ def test_theta_trip_writes_zero_before_logging_or_printing(rig: RigConfig) -> No
     assert r.end == "trip" and r.trip_reason == "theta_limit"
     trip_seq = sink.ticks()[-1][F["seq"]]
     j = dev.journal
-    i_zero = j.index(("write", trip_seq, 0, 0))
+    i_zero = j.index(("write", trip_seq, 0, 0, True))
     i_event = next(i for i, e in enumerate(j) if e[0] == "log" and e[1][0] == "event" and "→ tripped" in e[1][1][2])
     i_print = next(i for i, e in enumerate(j) if e[0] == "print" and "→ tripped" in e[2])
     assert i_zero < i_event and i_zero < i_print
@@ -216,8 +302,9 @@ def test_link_loss_trips_with_zero(rig: RigConfig) -> None:
     loop, sink = make_loop(rig, dev, duration=10.0)
     r = loop.run()
     assert r.end == "trip" and r.trip_reason == "link_loss" and r.ticks == 400
-    assert dev.writes[-2] == ("write", 399, 0, 0) and dev.ops[-1] == ("stop",)
+    assert dev.ops[-1] == ("stop",) and all(w[4] for w in dev.writes)
     assert any("link loss: no SAMPLE" in e for e in sink.events())
+    assert _output_when_told(dev, "link loss") == 0.0
 
 
 def test_sigint_stops_with_zero_and_restores_the_handler(rig: RigConfig) -> None:
@@ -229,8 +316,9 @@ def test_sigint_stops_with_zero_and_restores_the_handler(rig: RigConfig) -> None
     loop, sink = make_loop(rig, dev, duration=10.0)
     r = loop.run()
     assert r.end == "operator_stop" and r.trip_reason == "operator_stop"
-    assert dev.writes[-2][2:] == (0, 0) and dev.writes[-1][2:] == (0, 0)
+    assert dev.writes[-1] == ("write", 300, 0, 0, True) and dev.ops[-1] == ("stop",)
     assert any("operator stop (SIGINT)" in e for e in sink.events())
+    assert _output_when_told(dev, "operator stop") == 0.0
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
@@ -241,7 +329,7 @@ def test_stale_samples_skip_whole_periods_without_commands(rig: RigConfig) -> No
     loop, sink = make_loop(rig, dev, duration=2.0)
     r = loop.run()
     assert r.end == "duration" and r.ticks == 2 * RATE and len(sink.ticks()) == r.ticks
-    answered = [w[1] for w in dev.writes[:-1]]
+    answered = [w[1] for w in dev.writes]
     assert {400, 401, 402}.isdisjoint(answered) and 403 in answered
     assert r.overruns == 1 and r.skipped_periods == 3
     timing = {rec[F["seq"]]: rec for rec in sink.ticks()}
@@ -255,7 +343,7 @@ def test_repeated_overruns_trip(rig: RigConfig) -> None:
     loop, _ = make_loop(rig, dev, duration=3.0, max_overruns=5)
     r = loop.run()
     assert r.end == "trip" and r.trip_reason == "overruns" and r.overruns == 5
-    assert dev.writes[-2][2:] == (0, 0)
+    assert dev.writes[-1][2:] == (0, 0, True) and dev.ops[-1] == ("stop",)
 
 
 def test_seq_going_back_trips_with_zero(rig: RigConfig) -> None:
@@ -268,7 +356,8 @@ def test_seq_going_back_trips_with_zero(rig: RigConfig) -> None:
     loop, _ = make_loop(rig, dev, duration=10.0)
     r = loop.run()
     assert r.end == "trip" and r.trip_reason == "sequence" and "from 299 to 0" in r.trip_message
-    assert dev.writes[-2] == ("write", 0, 0, 0) and not [w for w in dev.writes[300:] if w[3] & ENABLE]
+    assert dev.ops[-1] == ("stop",) and not [w for w in dev.writes[300:] if w[3] & ENABLE]
+    assert _output_when_told(dev, "restarted without a handshake") == 0.0
 
 
 def test_latched_device_fault_is_cleared_while_idle_before_arming(rig: RigConfig) -> None:
@@ -305,8 +394,9 @@ def test_an_exception_in_the_update_sends_zero_and_propagates(rig: RigConfig) ->
     loop, _ = make_loop(rig, dev, duration=2.0, controller=ctrl)
     with pytest.raises(ZeroDivisionError):
         loop.run()
-    assert dev.writes[-2][2:] == (0, 0) and dev.writes[-1][2:] == (0, 0) and dev.ops[-1] == ("stop",)
+    assert dev.writes[-1][2:] == (0, 0, True) and dev.ops[-1] == ("stop",)
     assert loop.result.end == "error" and loop.sup.reason == "error"
+    assert _output_when_told(dev, "ZeroDivisionError") == 0.0
 
 
 # ------------------------------------------------------------------ timing helpers

@@ -36,6 +36,7 @@ from firmware_protocol import (
     encode_command,
     make_hello,
     verify_hello_ack,
+    zero_answer,
 )
 from furuta_rt.errors import UserError
 from furuta_rt.model.sensors import Calibration
@@ -44,7 +45,11 @@ USB_SERIAL_SYSFS = "/sys/bus/usb-serial/devices"
 
 
 class LinkLost(Exception):
-    """The device vanished (EOF, EIO) or stopped answering."""
+    """The device vanished (EOF, EIO: ``gone``) or stopped answering or reading."""
+
+    def __init__(self, message: str, gone: bool = True) -> None:
+        super().__init__(message)
+        self.gone = gone
 
 
 @dataclass(frozen=True, slots=True)
@@ -112,11 +117,14 @@ class HardwareInterface(ABC):
 
     @abstractmethod
     def write(self, seq: int, counts: int, flags: int) -> None:
-        """Send the COMMAND answering SAMPLE ``seq``."""
+        """Send the COMMAND answering SAMPLE ``seq`` (the whole frame, or raise LinkLost)."""
 
     @abstractmethod
-    def stop(self) -> None:
-        """u = 0 with ENABLE clear, then STOP; never raises."""
+    def stop(self) -> str | None:
+        """Zero the actuator now: u = 0 with ENABLE clear answering the newest SAMPLE received, when a
+        device following PROTOCOL.md §6 accepts it (``zero_answer``), then STOP (§4: zero at once,
+        whatever seq the device last accepted). Never raises: None once both went out, else why not
+        (a later call tries again)."""
 
     @abstractmethod
     def close(self) -> None: ...
@@ -150,6 +158,9 @@ class SerialHardware(HardwareInterface):
     HANDSHAKE_RETRY_S = 0.1
     HANDSHAKE_TRIES = 20
     CONFIG_TIMEOUT_S = 2.0
+    WRITE_TIMEOUT_S = 0.05
+    """A frame the port does not take whole within this long: the device is not reading (LinkLost)."""
+    STOP_TIMEOUT_S = 0.5
 
     def __init__(self, port: str, baudrate: int = 1_000_000) -> None:
         self.port = port
@@ -158,8 +169,11 @@ class SerialHardware(HardwareInterface):
         self._ser = None
         self._fd = -1
         self._poll = select.poll()
+        self._wpoll = select.poll()
         self._queue: deque[Sample] = deque()
-        self._last_seq = 0
+        self._last_seq: int | None = None  # newest SAMPLE returned by read() in this session
+        self._written: int | None = None  # seq of the last COMMAND written whole in this session
+        self._torn = False  # a frame went out in part: the device's decoder needs a delimiter first
         self.arrival_ns = 0
         self.status: Status | None = None
         self.write_errors = 0
@@ -179,17 +193,41 @@ class SerialHardware(HardwareInterface):
             raise _user_error_for_open(self.port, err) from None
         self._fd = self._ser.fileno()
         self._poll.register(self._fd, select.POLLIN)
+        self._wpoll.register(self._fd, select.POLLOUT)
         warning = check_usb_latency(self.port, self._ser)
         if warning:
             self.warnings.append(warning)
 
-    def _send(self, frame: bytes) -> None:
-        try:
-            os.write(self._fd, frame)
-        except BlockingIOError:
-            self.write_errors += 1
-        except OSError as err:
-            raise LinkLost(f"write to {self.port} failed: {err}") from None
+    def _send(self, frame: bytes, timeout: float | None = None) -> None:
+        """Write the whole frame, waiting up to ``timeout`` s (default WRITE_TIMEOUT_S) for the port to
+        take the rest; LinkLost if it does not, or if the port fails. A frame cut short would corrupt
+        the next one too (PROTOCOL.md §2.1), so the next frame starts with a delimiter."""
+        if self._torn:
+            frame = b"\x00" + frame
+        limit = self.WRITE_TIMEOUT_S if timeout is None else timeout
+        view = memoryview(frame)
+        start = 0.0
+        while True:
+            try:
+                n = os.write(self._fd, view)
+            except BlockingIOError:
+                n = 0
+            except OSError as err:
+                self._torn = self._torn or len(view) < len(frame)
+                raise LinkLost(f"write to {self.port} failed: {err}") from None
+            view = view[n:]
+            if not view:
+                self._torn = False
+                return
+            now = time.perf_counter()
+            if not start:
+                start = now
+            elif now - start >= limit:
+                self.write_errors += 1
+                self._torn = self._torn or len(view) < len(frame)
+                raise LinkLost(f"write to {self.port} stalled: the port took {len(frame) - len(view)} of {len(frame)} "
+                               f"bytes of a frame in {(now - start) * 1e3:.0f} ms (the device is not reading)", gone=False)
+            self._wpoll.poll(max(1, math.ceil((limit - (now - start)) * 1000.0)))
 
     def _receive(self, timeout: float) -> list:
         """Messages received within ``timeout`` s (at least one poll)."""
@@ -232,6 +270,7 @@ class SerialHardware(HardwareInterface):
         self._ser.reset_input_buffer()  # type: ignore[attr-defined]
         self.decoder.reset()
         self._stopped = False
+        self._last_seq = self._written = None
         ack = None
         hellos: dict[int, object] = {}
         self._send(b"\x00")  # PROTOCOL.md §2.1: flush any partial frame at the device
@@ -296,21 +335,45 @@ class SerialHardware(HardwareInterface):
 
     def write(self, seq: int, counts: int, flags: int) -> None:
         self._send(encode_command(seq, counts, flags))
+        self._written = seq
 
-    def stop(self) -> None:
-        if self._fd < 0 or self._stopped:
-            return
-        self._stopped = True
-        # Each frame twice: on a noisy link a single corrupted frame must not leave the actuator enabled
-        # (the device drops a bad frame silently; duplicates are harmless: both mean "output zero").
-        zero, stop = encode_command(self._last_seq, 0, 0), encode(Stop(reason=0))
-        for frame in (zero, zero, stop, stop):
-            try:
-                self._send(frame)
-            except LinkLost:
+    def _drain(self) -> None:
+        """Take in what the device already sent, without waiting (a newer SAMPLE can then get the zero)."""
+        for _ in range(64):
+            if not self._poll.poll(0):
                 return
+            try:
+                data = os.read(self._fd, 4096)
+            except OSError:
+                return
+            if not data:
+                return
+            for msg in self.decoder.feed(data):
+                if type(msg) is Sample:
+                    self._queue.append(msg)
+
+    def stop(self) -> str | None:
+        if self._fd < 0:
+            return "the port is closed"
+        if self._stopped:
+            return None
+        self._drain()
+        newest = self._queue[-1].seq if self._queue else self._last_seq
+        seq = zero_answer(newest, self._written)
+        # STOP twice: on a noisy link one corrupted frame must not leave the actuator enabled (the device
+        # drops a bad frame silently; a second STOP is harmless). A second zero COMMAND would be discarded.
+        frames = ([] if seq is None else [encode_command(seq, 0, 0)]) + [encode(Stop(reason=0))] * 2
+        try:
+            for frame in frames:
+                self._send(frame, self.STOP_TIMEOUT_S)
+        except LinkLost as err:
+            return str(err)
+        if seq is not None:
+            self._written = seq
+        self._stopped = True
         with contextlib.suppress(Exception):  # best effort on a dying link
-            self._ser.flush()  # type: ignore[attr-defined]  # tcdrain: the zero command is on the wire
+            self._ser.flush()  # type: ignore[attr-defined]  # tcdrain: the frames are on the wire
+        return None
 
     def close(self) -> None:
         if self._ser is not None:

@@ -13,8 +13,11 @@ Per tick:
 5. a tick record goes into the current batch; every ``batch_ticks`` ticks the batch is handed to the
    logger process with ``put_nowait`` (a full queue drops the batch and counts it).
 
-On a trip, a signal or an exception, u = 0 with ENABLE clear is written *before* anything is logged
-or printed.
+On a trip, a signal, link loss or an exception the actuator is zeroed *before* anything is logged or
+printed: a trip inside a tick answers its SAMPLE with u = 0 (ENABLE clear); every other way out calls
+``hw.stop()`` at once, which answers the newest SAMPLE with u = 0 when a device following PROTOCOL.md §6
+accepts it (a COMMAND answering an already answered SAMPLE is discarded) and sends STOP, which zeroes
+the output at once (§4). If that cannot be sent, an ERROR event says so.
 """
 
 from __future__ import annotations
@@ -136,6 +139,8 @@ class ControlLoop:
         self._perf0 = time.perf_counter_ns()
         self._n_sup_transitions = 0
         self._last_seq = 0
+        self._stop_error: str | None = None
+        self._port_gone = False
 
     # ----------------------------------------------------------------- control
     def request_stop(self, reason: str) -> None:
@@ -151,9 +156,11 @@ class ControlLoop:
         return COMMAND_FULL_SCALE if c > COMMAND_FULL_SCALE else max(c, -COMMAND_FULL_SCALE)
 
     def _zero(self) -> None:
-        """u = 0, ENABLE clear, answering the last sample. Never raises."""
-        with contextlib.suppress(Exception):  # the link may be gone; stop() retries
-            self.hw.write(self._last_seq, 0, 0)
+        """Zero the actuator now (``hw.stop``: u = 0 the device accepts, then STOP). Never raises."""
+        try:
+            self._stop_error = self.hw.stop()
+        except Exception as err:  # a HardwareInterface must not raise here; still zero first, report after
+            self._stop_error = f"{type(err).__name__}: {err}"
 
     # ----------------------------------------------------------------- outputs
     def _wall(self, perf_ns: int) -> int:
@@ -213,6 +220,7 @@ class ControlLoop:
         try:
             self._run()
         except LinkLost as err:
+            self._port_gone = err.gone
             self._zero()
             if self._stop is not None:  # Ctrl-C reached the whole group: hil-mock closed its pty first
                 self._operator_stop()
@@ -225,7 +233,13 @@ class ControlLoop:
             self._transitions()
             raise
         finally:
-            self.hw.stop()  # u = 0 (ENABLE clear) and STOP, on every path
+            self._zero()  # u = 0 and STOP on every path (a no-op if done; tries again if it failed)
+            if self._stop_error is not None and self._port_gone:  # the trip message already says why
+                self.event("WARNING", "u = 0 and STOP not sent (the port is gone): the device zeroes its "
+                           "actuator on the hang-up or by its watchdog")
+            elif self._stop_error is not None:
+                self.event("ERROR", f"could not send u = 0 and STOP to the device ({self._stop_error}); "
+                           "its watchdog or the hang-up has to zero the actuator")
             for s, h in old.items():
                 signal.signal(s, h)
             r = self.result
@@ -276,6 +290,8 @@ class ControlLoop:
             t0 = perf()
             s = hw.read(timeout)
             t1 = perf()
+            if s is not None:
+                self._last_seq = s.seq
             if self._stop is not None:
                 self._zero()
                 self._operator_stop()
@@ -289,7 +305,6 @@ class ControlLoop:
                 return
             timeout = loss_timeout
             seq = s.seq
-            self._last_seq = seq
             arrival = hw.arrival_ns
             read_us = (t1 - arrival if arrival >= t0 else t1 - t0) * 1e-3
             dev_us = clock.unwrap(s.t_us)
@@ -335,8 +350,7 @@ class ControlLoop:
             if state is _BALANCING:
                 out = ctrl.update(m)
                 u = out.u
-                if u - u != 0.0:  # NaN or inf
-                    self._zero()
+                if u - u != 0.0:  # NaN or inf: tripped, the write below answers this SAMPLE with u = 0
                     sup.command_not_finite(seq, u)
                     state = _TRIPPED
                     u = u_lin = u_comp = 0.0
