@@ -469,17 +469,24 @@ class MockRecord:
     def last_command(self) -> tuple[int, int, int, int, int, int]:
         return self.commands[-1]
 
-    def assert_ends_safe(self) -> None:
-        """The actuator output is zero at the end, and the host's last frame that took effect zeroes it: a
-        STOP after the last accepted COMMAND, or an accepted COMMAND with u = 0 and ENABLE clear. A
+    def end_problems(self) -> list[str]:
+        """Empty if the actuator output is zero at the end and the host's last frame that took effect zeroes
+        it: a STOP after the last accepted COMMAND, or an accepted COMMAND with u = 0 and ENABLE clear. A
         COMMAND the device discarded (PROTOCOL.md §6) counts for nothing."""
-        assert self.final_output == 0.0, f"the actuator ends at {self.final_output}"
+        out = []
+        if self.final_output != 0.0:
+            out.append(f"actuator ended at {self.final_output}")
         acted = [c for c, ok in zip(self.commands, self.accepted, strict=True) if ok]
         last = acted[-1] if acted else None
         if self.stops and (last is None or self.stops[-1][0] >= last[0]):
-            return
-        assert last is not None and last[4] == 0 and not last[5] & fp.CommandFlags.ENABLE, (
-            f"the last COMMAND the device accepted, {last}, is not u = 0 / disabled and no STOP followed it")
+            return out
+        if last is not None and (last[4] != 0 or last[5] & fp.CommandFlags.ENABLE):
+            out.append(f"last COMMAND accepted counts={last[4]} flags={last[5]} and no STOP after it")
+        return out
+
+    def assert_ends_safe(self) -> None:
+        problems = self.end_problems()
+        assert not problems, "; ".join(problems)
 
 
 class MockProcess:

@@ -4,12 +4,14 @@ a pty whose reader is slow or gone.
 
 The device runs in lockstep pacing: each tick waits for the COMMAND answering the previous SAMPLE (up to
 1 s), so "zero within one period" is asserted by tick count at the device, not by wall time, and holds on a
-loaded machine.
+loaded machine. Items 3 and 8 run the real CLI as subprocesses with real signals.
+
+Each check returns its problems (empty: held) and a note; the tests assert it is empty, scripts/chaos runs
+the same checks repeatedly and tabulates them.
 """
 
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
 import threading
@@ -65,75 +67,84 @@ def _output_from(rec: _Recorder, tick: int) -> list[float]:
     return outs[first:]
 
 
-@pytest.mark.parametrize("how", ["operator stop", "trip", "link loss", "exception"])
-def test_the_device_output_is_zero_within_one_period_of_every_way_out(how: str) -> None:
-    """Issue 15 item 1: the loop's u = 0 is accepted by a device that follows PROTOCOL.md §6 (no COMMAND
-    discarded) and the actuator is zero from the device tick after the last SAMPLE the host read
-    (operator stop, θ trip, exception after the tick's write), or after the SAMPLE it never got (link
-    loss: the device's bytes are lost, so the host read k, the device sent k + 1)."""
+WAYS_OUT = ("operator stop", "trip", "link loss", "exception")
+_REASON = {"operator stop": "operator_stop", "trip": "theta_limit", "link loss": "link_loss", "exception": "error"}
+
+
+def check_way_out(how: str, after_batches: int = 8) -> tuple[list[str], str]:
+    """Item 1 at the device: run the loop against hil_mock's firmware until ``how`` happens (after about
+    ``after_batches`` tenths of a second of balancing). The host's u = 0 must be accepted (no COMMAND
+    discarded, PROTOCOL.md §6) and the actuator zero from the device tick after the last SAMPLE the host
+    read, k + 1 (link loss: the device's bytes are lost, the host read k, the device sent k + 1, so from
+    k + 2), with STOP received."""
     cfg = build_config(device={"rate_hz": RATE, "pacing": "lockstep", "priority": "normal", "watchdog_ms": 5000})
     rig = load_rig("thesis")
     dev = VirtualDevice(cfg)
     rec = _Recorder(dev)
     dev.start()
     hw = SerialHardware(dev.port)
-    sink: ListSink = ListSink()
-    gains = None
+    sink: ListSink = _FailingSink(after_batches) if how == "exception" else ListSink()
+    gains = [2.0, 0.3, 0.0, 0.0] if how == "trip" else None  # too weak: it falls while driven, |θ| > 0.5 rad trips
     lim = SupervisorLimits.from_config(rig.safety, RATE)
     lim = SupervisorLimits(lim.theta_limit, lim.phi_limit, lim.arm_theta, 10**9, lim.settle_ticks)
-    if how == "trip":
-        gains = [2.0, 0.3, 0.0, 0.0]  # too weak to hold it: it falls while driven until |θ| > 0.5 rad
-    elif how == "exception":
-        sink = _FailingSink(fail_at=8)  # the 8th tick batch: the put after its tick's COMMAND raises
+    problems: list[str] = []
     try:
         info = hw.handshake(RATE, 5000)
         loop = ControlLoop(hw, Controller.from_rig(rig, gains=gains), Supervisor(lim),
                            LoopSettings(rate_hz=RATE, duration=30.0, link_timeout_s=0.05, first_sample_timeout=10.0),
                            full_scale=info.full_scale, calibration=info.calibration, log=sink)
         if how == "operator stop":
-            sink.put_nowait = _stop_after(loop, sink, batches=8)  # type: ignore[method-assign]
-        elif how == "link loss":
-            sink.put_nowait = _mute_after(dev, sink, batches=8)  # type: ignore[method-assign]
-        if how == "exception":
-            with pytest.raises(RuntimeError, match="logger queue closed"):
-                loop.run()
-        else:
+            sink.put_nowait = _after_batches(sink, after_batches, lambda: loop.request_stop("SIGINT"))  # type: ignore[method-assign]
+        elif how == "link loss":  # every device → host byte lost from the next tick on
+            sink.put_nowait = _after_batches(sink, after_batches, lambda: dev.mute(60.0))  # type: ignore[method-assign]
+        try:
             loop.run()
+        except RuntimeError as err:
+            if how != "exception":
+                raise
+            if "logger queue closed" not in str(err):
+                problems.append(f"unexpected error {err}")
+        else:
+            if how == "exception":
+                problems.append("the loop swallowed the exception")
     finally:
         hw.close()
         dev.stop()
     r = loop.result
-    expected = {"operator stop": "operator_stop", "trip": "theta_limit", "link loss": "link_loss", "exception": "error"}
-    assert r.trip_reason == expected[how], (r.trip_reason, r.trip_message)
+    if r.trip_reason != _REASON[how]:
+        problems.append(f"ended with {r.trip_reason}: {r.trip_message}")
     k = loop._last_seq  # the last SAMPLE the host read
-    assert any(u != 0.0 for _, _, u in rec.outputs), "the actuator was driven"
-    assert all(rec.accepted), f"COMMANDs discarded: {[c for c, ok in zip(rec.commands, rec.accepted, strict=True) if not ok]}"
-    first_zero_tick = k + 2 if how == "link loss" else k + 1
-    assert set(_output_from(rec, first_zero_tick)) == {0.0}, (
-        f"outputs from tick {first_zero_tick}: {_output_from(rec, first_zero_tick)} (host read up to {k})")
-    assert rec.stops, "STOP reached the device"
+    if not any(u != 0.0 for _, _, u in rec.outputs):
+        problems.append("the actuator was never driven")
+    discarded = [c for c, ok in zip(rec.commands, rec.accepted, strict=True) if not ok]
+    if discarded:
+        problems.append(f"{len(discarded)} COMMANDs discarded by the device: {discarded[:3]}")
+    first_zero = k + 2 if how == "link loss" else k + 1
+    outs = _output_from(rec, first_zero)
+    if set(outs) != {0.0}:
+        problems.append(f"outputs from tick {first_zero}: {outs[:4]} (the host read up to {k})")
+    if not rec.stops:
+        problems.append("no STOP reached the device")
+    zero_at = rec.output_ticks[-1] - 1  # the tick after which the output went to zero for good
+    return problems, f"{how}: host read up to seq {k}, output zero from tick {zero_at + 1}"
 
 
-def _stop_after(loop: ControlLoop, sink: ListSink, batches: int) -> Any:
+def _after_batches(sink: ListSink, batches: int, action: Any) -> Any:
     put = sink.put_nowait
 
     def put_nowait(item: Any) -> None:
         put(item)
         if item[0] == "ticks" and sum(1 for kind, *_ in sink.items if kind == "ticks") == batches:
-            loop.request_stop("SIGINT")  # as the signal handler does, between two ticks
+            action()  # between two ticks, as a signal handler would
 
     return put_nowait
 
 
-def _mute_after(dev: VirtualDevice, sink: ListSink, batches: int) -> Any:
-    put = sink.put_nowait
-
-    def put_nowait(item: Any) -> None:
-        put(item)
-        if item[0] == "ticks" and sum(1 for kind, *_ in sink.items if kind == "ticks") == batches:
-            dev.mute(60.0)  # every device → host byte lost from the next tick on
-
-    return put_nowait
+@pytest.mark.parametrize("how", WAYS_OUT)
+def test_the_device_output_is_zero_within_one_period_of_every_way_out(how: str) -> None:
+    """Issue 15 item 1 (see ``check_way_out``)."""
+    problems, _ = check_way_out(how)
+    assert not problems, problems
 
 
 # ------------------------------------------------------------------ item 2: whole frames or a loud failure
@@ -144,9 +155,9 @@ def _open_pair() -> tuple[int, SerialHardware]:
     return master, hw
 
 
-def test_a_slow_reader_gets_every_frame_whole() -> None:
-    """The port's buffer fills because the device reads slowly: every COMMAND still arrives whole and in
-    order (partial writes are completed, a full buffer is waited for), none is dropped."""
+def check_slow_reader(n: int = 3000) -> tuple[list[str], str]:
+    """Item 2: the device reads the port slowly, in odd chunks, so its buffer fills and writes come back
+    partial or with EAGAIN: every COMMAND must still arrive whole and in order."""
     master, hw = _open_pair()
     got: list[fp.Message] = []
     decoder = fp.StreamDecoder()
@@ -155,7 +166,7 @@ def test_a_slow_reader_gets_every_frame_whole() -> None:
     def slow_reader() -> None:
         while True:
             try:
-                data = os.read(master, 97)  # odd chunks: frames are cut anywhere
+                data = os.read(master, 97)
             except BlockingIOError:
                 if done.is_set():
                     return
@@ -168,56 +179,82 @@ def test_a_slow_reader_gets_every_frame_whole() -> None:
 
     t = threading.Thread(target=slow_reader, daemon=True)
     t.start()
-    n = 3000
+    problems = []
+    t0 = time.monotonic()
     try:
         for seq in range(n):
             hw.write(seq, seq % 30000 - 15000, 1)
+    except LinkLost as err:
+        problems.append(f"gave up: {err}")
     finally:
         time.sleep(0.2)
         done.set()
         t.join(10)
         hw.close()
         os.close(master)
-    assert decoder.errors == 0, f"{decoder.errors} torn frames reached the device"
-    assert [m.seq for m in got] == list(range(n)), "every COMMAND arrived, in order"  # type: ignore[attr-defined]
-    assert hw.write_errors == 0
+    if decoder.errors:
+        problems.append(f"{decoder.errors} torn frames reached the device")
+    seqs = [m.seq for m in got]  # type: ignore[attr-defined]
+    if seqs != list(range(n)):
+        problems.append(f"{n - len(set(seqs))} COMMANDs lost or out of order")
+    return problems, f"{n} frames through a slow reader in {time.monotonic() - t0:.1f} s, {len(seqs)} arrived whole"
 
 
-def test_a_device_that_stops_reading_fails_loudly_and_stop_says_so() -> None:
-    """Nobody reads the port: ``write`` raises LinkLost naming the port within its timeout (it never drops a
-    frame silently); ``stop`` then reports that u = 0 and STOP could not be sent; once the device reads
-    again, a second ``stop`` gets them out intact (a delimiter first flushes the torn frame)."""
+def check_dead_reader() -> tuple[list[str], str]:
+    """Item 2: nobody reads the port. ``write`` must raise LinkLost ("not reading") instead of dropping
+    frames; ``stop`` must say it could not send; once the device reads again a second ``stop`` gets both
+    STOPs out intact (a delimiter first flushes the torn frame)."""
     master, hw = _open_pair()
+    problems = []
+    decoder = fp.StreamDecoder()
+    msgs: list[fp.Message] = []
+
+    def drain() -> None:  # until the pty has been quiet for 0.2 s (its kernel worker moves bytes late)
+        quiet = time.monotonic()
+        while time.monotonic() - quiet < 0.2:
+            try:
+                data = os.read(master, 65536)
+            except OSError:
+                time.sleep(0.01)
+                continue
+            msgs.extend(decoder.feed(data))
+            quiet = time.monotonic()
+
+    written = 0
     try:
-        with pytest.raises(LinkLost, match="not reading") as exc:
+        try:
             for seq in range(1_000_000):
                 hw.write(seq, 100, 1)
-        assert not exc.value.gone
+                written += 1
+            problems.append("a million frames into a port nobody reads, and no error")
+        except LinkLost as err:
+            if "not reading" not in str(err) or err.gone:
+                problems.append(f"wrong error: {err}")
         err = hw.stop()
-        assert err is not None and "not reading" in err
-        decoder = fp.StreamDecoder()
-        msgs: list[fp.Message] = []
-
-        def drain() -> None:  # until the pty has been quiet for 0.2 s (its kernel worker moves bytes late)
-            quiet = time.monotonic()
-            while time.monotonic() - quiet < 0.2:
-                try:
-                    data = os.read(master, 65536)
-                except (BlockingIOError, OSError):
-                    time.sleep(0.01)
-                    continue
-                msgs.extend(decoder.feed(data))
-                quiet = time.monotonic()
-
+        if err is None or "not reading" not in err:
+            problems.append(f"stop() on a full port said {err!r}")
         drain()
-        assert msgs and all(isinstance(m, fp.Command) for m in msgs)
+        if len([m for m in msgs if isinstance(m, fp.Command)]) != written:
+            problems.append(f"{written} COMMANDs written whole, {len(msgs)} arrived")
         msgs.clear()
-        assert hw.stop() is None
+        err = hw.stop()
         drain()
-        assert [type(m) for m in msgs] == [fp.Stop, fp.Stop], msgs
+        if err is not None or [type(m) for m in msgs] != [fp.Stop, fp.Stop]:
+            problems.append(f"second stop() said {err!r}, the device got {msgs}")
     finally:
         hw.close()
         os.close(master)
+    return problems, f"LinkLost after {written} whole frames; stop() reported it, then got 2 STOPs out"
+
+
+def test_a_slow_reader_gets_every_frame_whole() -> None:
+    problems, _ = check_slow_reader()
+    assert not problems, problems
+
+
+def test_a_device_that_stops_reading_fails_loudly_and_stop_says_so() -> None:
+    problems, _ = check_dead_reader()
+    assert not problems, problems
 
 
 def test_the_loop_reports_a_stop_it_could_not_send() -> None:
@@ -263,60 +300,88 @@ def _semaphores(pid: int) -> set[str]:
     return {line.split()[-1] for line in maps.splitlines() if "/dev/shm/sem." in line}
 
 
-def test_sigkill_of_the_daemon_alone_ends_its_mock_and_leaves_no_semaphore(tmp_path: Path) -> None:
-    """Issue 15 item 3: ``furuta-rt run --mock --log`` as a user starts it; SIGKILL of the daemon process
-    only (not its group). Its hil-mock child ends by itself (it was left running, at 10 % CPU), and no
-    named semaphore of the run stays in /dev/shm once its processes are gone."""
-    d = DaemonProcess(["--mock", "--duration", "120", "--no-tui", "--log", str(tmp_path / "run.mcap")])
+def check_kill_daemon_alone(tmp: Path) -> tuple[list[str], str]:
+    """Item 3: ``furuta-rt run --mock --log`` as a user starts it; SIGKILL of the daemon process only (not
+    its group). Its hil-mock child must end by itself (it was left running, at 10 % CPU), and no named
+    semaphore of the run may stay in /dev/shm once its processes are gone."""
+    d = DaemonProcess(["--mock", "--duration", "120", "--no-tui", "--log", str(tmp / "run.mcap")])
     children: list[int] = []
+    problems = []
     try:
         d.wait_for_line("→ balancing", timeout=120)
         children = d.children()
         mocks = [p for p in children if "hil_mock" in _cmdline(p)]
-        assert len(mocks) == 1, [_cmdline(p) for p in children]
         sems = _semaphores(d.pid)
-        assert sems, "the daemon's logger queue uses named semaphores (the check below would be empty)"
+        if len(mocks) != 1 or not sems:
+            return [f"unexpected set-up: children {[_cmdline(p) for p in children]}, semaphores {sems}"], ""
         os.kill(d.pid, signal.SIGKILL)
         d.proc.wait(30)
-        end = time.monotonic() + 60.0  # a bound for a loaded machine; the mock reacts at its next tick
+        t_kill = time.monotonic()
+        end = t_kill + 60.0  # a bound for a loaded machine; the mock reacts at its next tick
+        while _alive(mocks[0]) and time.monotonic() < end:
+            time.sleep(0.02)
+        t_mock = time.monotonic() - t_kill
         while any(_alive(p) for p in children) and time.monotonic() < end:
             time.sleep(0.05)
-        assert not _alive(mocks[0]), "hil-mock outlived the daemon that started it"
-        assert not [p for p in children if _alive(p)], [_cmdline(p) for p in children if _alive(p)]
+        if _alive(mocks[0]):
+            problems.append("hil-mock outlived the daemon that started it")
+        problems += [f"still running: {_cmdline(p)[:60]}" for p in children if _alive(p)]
         leaked = sorted(s for s in sems if Path(s).exists())
-        assert not leaked, f"semaphores left in /dev/shm: {leaked}"
+        if leaked:
+            problems.append(f"semaphores left in /dev/shm: {leaked}")
     finally:
         d.kill_group(signal.SIGKILL)
         for p in children:
-            with contextlib.suppress(ProcessLookupError):
+            if _alive(p):
                 os.kill(p, signal.SIGKILL)
+    return problems, f"mock gone {t_mock:.2f} s after the kill; {len(sems)} semaphores removed"
+
+
+def test_sigkill_of_the_daemon_alone_ends_its_mock_and_leaves_no_semaphore(tmp_path: Path) -> None:
+    problems, _ = check_kill_daemon_alone(tmp_path)
+    assert not problems, problems
 
 
 # ------------------------------------------------------------------ item 8: one mock, several hosts in a row
-def test_three_hosts_in_a_row_against_one_mock_each_balance(tmp_path: Path) -> None:
-    """Issue 15 item 8: against one ``hil-mock --pty``, three ``furuta-rt run --port`` one after the other.
-    The mock kept the pendulum the previous host dropped (after its STOP it fell and hung at θ = π, θ's
-    ADC at its rail with ADC_OVERRANGE latched), so every host after the first idled, never armed and
+def check_hosts_in_a_row(tmp: Path, hosts: int = 3) -> tuple[list[str], str]:
+    """Item 8: against one ``hil-mock --pty``, ``hosts`` runs of ``furuta-rt run --port`` one after the
+    other. The mock kept the pendulum the previous host dropped (after its STOP it fell and hung at θ = π,
+    θ's ADC at its rail with ADC_OVERRANGE latched), so every host after the first idled, never armed and
     ended "never balanced". Each new session must start from the rig's initial state, as a fresh mock's."""
-    mock = MockProcess(tmp_path, [])
+    mock = MockProcess(tmp, [])
     runs = []
     try:
-        for i in range(3):
-            d = tmp_path / f"run{i}"
+        for i in range(hosts):
+            d = tmp / f"run{i}"
             d.mkdir()
             daemon = start_daemon(d, mock.port, duration=2.0)
-            rc = daemon.wait(timeout=120)
-            runs.append((rc, daemon, d))
-            time.sleep(1.0)  # unactuated after STOP: the pendulum falls meanwhile (≈ 0.5 s)
+            runs.append((daemon.wait(timeout=120), daemon, d))
+            time.sleep(2.0)  # unactuated after STOP, the pendulum falls (from near upright it takes seconds)
     finally:
         rec = mock.stop()
+    problems = []
+    found = []
     for i, (rc, daemon, d) in enumerate(runs):
-        assert traceback_free(daemon.stderr + daemon.stdout), daemon.stderr
         s = read_summary(d)
-        assert rc == 0 and s["end"] == "duration", f"host {i + 1}: exit {rc}, {s['end']} {s['trip_message']}"
+        if not traceback_free(daemon.stderr + daemon.stdout):
+            problems.append(f"host {i + 1}: traceback")
+        if rc != 0 or s.get("end") != "duration":
+            problems.append(f"host {i + 1}: exit {rc}, {s.get('end')} {s.get('trip_message')}")
         log = read_log(d / "run.mcap")
-        assert log.ticks["seq"][0] < 10, f"host {i + 1}: a fresh session (seq from 0)"
-        assert abs(log.ticks["theta"][0] - 0.05) < 0.01, f"host {i + 1} found θ = {log.ticks['theta'][0]:.3f} rad"
-        assert (log.ticks["state"] == "balancing").sum() > 0.8 * log.n_ticks, f"host {i + 1} did not balance"
-    assert sum(1 for _, _, what in rec.events if what == "hello") >= 3
-    rec.assert_ends_safe()
+        theta0 = float(log.ticks["theta"][0])
+        found.append(f"{theta0:.3f}")
+        if log.ticks["seq"][0] >= 10:
+            problems.append(f"host {i + 1}: not a fresh session (first seq {log.ticks['seq'][0]})")
+        if abs(theta0 - 0.05) > 0.01:
+            problems.append(f"host {i + 1} found θ = {theta0:.3f} rad, not the initial 0.05 rad")
+        if (log.ticks["state"] == "balancing").sum() <= 0.8 * log.n_ticks:
+            problems.append(f"host {i + 1} did not balance")
+    if sum(1 for _, _, what in rec.events if what == "hello") < hosts:
+        problems.append("fewer handshakes than hosts")
+    problems += rec.end_problems()
+    return problems, f"θ found by each host: {', '.join(found)} rad"
+
+
+def test_three_hosts_in_a_row_against_one_mock_each_balance(tmp_path: Path) -> None:
+    problems, _ = check_hosts_in_a_row(tmp_path, 3)
+    assert not problems, problems

@@ -592,3 +592,16 @@ def test_the_loop_creates_no_reference_cycles(rig: RigConfig) -> None:
     finally:
         gc.enable()
     assert unreachable == 0, f"{unreachable} objects in reference cycles after 1000 ticks"
+
+
+def test_a_hanging_pendulum_is_told_once_why_it_does_not_arm(rig: RigConfig) -> None:
+    """Issue 15 item 8: a host that finds the pendulum down stays idle; after 1 s it says once why (not a
+    silent run that ends "never balanced"), and never drives the actuator."""
+    dev = SimDevice(rig, x0=(math.pi, 0.0, 0.0, 0.0))
+    loop, sink = make_loop(rig, dev, duration=3.0)
+    r = loop.run()
+    notes = [e for e in sink.events() if "not armed" in e]
+    assert len(notes) == 1 and "|θ| = 3.14" in notes[0] and "upright" in notes[0], sink.events()
+    assert r.balancing_ticks == 0 and not [w for w in dev.writes if w[3] & ENABLE]
+    printed = [e for e in dev.journal if e[0] == "print" and "not armed" in e[2]]
+    assert len(printed) == 1 and printed[0][1] == "WARNING"

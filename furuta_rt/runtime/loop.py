@@ -62,6 +62,7 @@ class LoopSettings:
     batch_ticks: int = 50  # ticks per logger batch
     snapshot_ticks: int = 50  # ticks per dashboard snapshot (≤ 10 Hz at 500 Hz)
     stats_after_s: float = 1.0  # std θ/φ/u exclude the first second of balancing
+    idle_notice_s: float = 1.0  # still idle (never armed) after this long: one warning saying why
 
 
 @dataclass
@@ -269,6 +270,7 @@ class ControlLoop:
         loss_timeout = st.link_timeout_s
         target = None if st.duration is None else round(st.duration * st.rate_hz)
         stats_after = round(st.stats_after_s * st.rate_hz)
+        idle_notice = round(st.idle_notice_s * st.rate_hz)  # ticks: say once why it does not arm
         clock = DeviceClock()
         perf = time.perf_counter_ns
         batch_ticks = st.batch_ticks
@@ -416,6 +418,8 @@ class ControlLoop:
                     self._flush_batch()
             if len(sup.transitions) != self._n_sup_transitions:
                 self._transitions()
+            elif n == idle_notice and state is State.IDLE and not sup.transitions:
+                self.event("WARNING", f"not armed after {st.idle_notice_s:g} s: {sup.why_not_armed(theta, phi, status)}")
             if snap_ticks:
                 win_ticks += 1
                 if dev > win_max:

@@ -120,6 +120,18 @@ class Supervisor:
         self._go(seq, State.TRIPPED, reason, message)
         return True
 
+    def why_not_armed(self, theta: float, phi: float, status: int) -> str:
+        """What keeps an idle supervisor from arming at this measurement (for the operator)."""
+        lim = self.limits
+        why = []
+        if not abs(theta) < lim.arm_theta:
+            why.append(f"|θ| = {abs(theta):.3f} rad, arms below {lim.arm_theta:g} rad: bring the pendulum upright")
+        if not abs(phi) < lim.phi_limit:
+            why.append(f"|φ| = {abs(phi):.3f} rad beyond {lim.phi_limit:g} rad: turn the arm back")
+        if status & _FAULT_MASK:
+            why.append(f"device fault {StatusFlags(status & _FAULT_MASK).name} latched (cleared when its cause is gone)")
+        return "; ".join(why) or "nothing (it arms at the next sample)"
+
     def step(self, seq: int, theta: float, phi: float, status: int, late: bool | None) -> tuple[State, bool]:
         """One tick: (state to run this tick in, whether to reset the controller first).
 
