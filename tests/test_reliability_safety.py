@@ -12,6 +12,7 @@ the same checks repeatedly and tabulates them.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import threading
@@ -37,6 +38,7 @@ from furuta_rt.io.mcap_read import read_log
 from furuta_rt.runtime.hardware import LinkLost, SerialHardware
 from furuta_rt.runtime.loop import ControlLoop, LoopSettings
 from furuta_rt.runtime.supervisor import Supervisor, SupervisorLimits
+from hil_mock import device as hil_device
 from hil_mock.config import build_config
 from hil_mock.device import VirtualDevice
 from hil_mock.ptyport import open_raw_pty
@@ -79,6 +81,8 @@ def check_way_out(how: str, after_batches: int = 8) -> tuple[list[str], str]:
     k + 2), with STOP received."""
     cfg = build_config(device={"rate_hz": RATE, "pacing": "lockstep", "priority": "normal", "watchdog_ms": 5000})
     rig = load_rig("thesis")
+    # the device waits up to 10 s for each answer (not 1 s): the next tick comes after the host acted, however loaded
+    saved, hil_device.LOCKSTEP_TIMEOUT_S = hil_device.LOCKSTEP_TIMEOUT_S, 10.0
     dev = VirtualDevice(cfg)
     rec = _Recorder(dev)
     dev.start()
@@ -91,7 +95,7 @@ def check_way_out(how: str, after_batches: int = 8) -> tuple[list[str], str]:
     try:
         info = hw.handshake(RATE, 5000)
         loop = ControlLoop(hw, Controller.from_rig(rig, gains=gains), Supervisor(lim),
-                           LoopSettings(rate_hz=RATE, duration=30.0, link_timeout_s=0.05, first_sample_timeout=10.0),
+                           LoopSettings(rate_hz=RATE, duration=30.0, link_timeout_s=0.5, first_sample_timeout=10.0),
                            full_scale=info.full_scale, calibration=info.calibration, log=sink)
         if how == "operator stop":
             sink.put_nowait = _after_batches(sink, after_batches, lambda: loop.request_stop("SIGINT"))  # type: ignore[method-assign]
@@ -110,6 +114,7 @@ def check_way_out(how: str, after_batches: int = 8) -> tuple[list[str], str]:
     finally:
         hw.close()
         dev.stop()
+        hil_device.LOCKSTEP_TIMEOUT_S = saved
     r = loop.result
     if r.trip_reason != _REASON[how]:
         problems.append(f"ended with {r.trip_reason}: {r.trip_message}")
@@ -292,12 +297,19 @@ def _cmdline(pid: int) -> str:
 
 
 def _semaphores(pid: int) -> set[str]:
-    """Named POSIX semaphores (/dev/shm/sem.*) mapped by process ``pid``."""
+    """Paths of the named POSIX semaphores (/dev/shm/sem.*) process ``pid`` has open. Its maps show the
+    temporary name glibc created each under (deleted), so they are found by inode."""
     try:
         maps = Path(f"/proc/{pid}/maps").read_text()
     except OSError:
         return set()
-    return {line.split()[-1] for line in maps.splitlines() if "/dev/shm/sem." in line}
+    inodes = {int(line.split()[4]) for line in maps.splitlines() if "/dev/shm/sem." in line}
+    out = set()
+    for path in Path("/dev/shm").glob("sem.*"):
+        with contextlib.suppress(OSError):
+            if path.stat().st_ino in inodes:
+                out.add(str(path))
+    return out
 
 
 def check_kill_daemon_alone(tmp: Path) -> tuple[list[str], str]:
