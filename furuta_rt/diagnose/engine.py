@@ -54,6 +54,10 @@ EXPERIMENTS: dict[frozenset[str], str] = {
         "a command that changes while the arm moves (several step levels, a sine) or a rest at zero command: on one "
         "constant step the gain's extra torque and a constant one are the same column; at rest a bias moves the arm"
     ),
+    frozenset({"arm_viscous", "arm_coulomb"}): (
+        "runs at several arm speeds in both directions (viscous friction grows with the speed, Coulomb friction does "
+        "not; on one speed in one direction the two are the same constant torque)"
+    ),
     frozenset({"pendulum_viscous", "pendulum_coulomb"}): (
         "a pendulum free decay from a large angle (viscous damping: exponential envelope; Coulomb: linear)"
     ),
@@ -90,6 +94,8 @@ class Found:
     t: float
     cv_gain: float  # held-out error reduction this effect brings (relative, given the others)
     source: str = "inverse dynamics"  # or "free decay" (energy lost per swing)
+    pinned: bool = True  # the data pins this parameter alone (identify.pinning), not only a combination of it
+    combinations: list[dict] = field(default_factory=list)  # the pinned combinations it enters, when it is not pinned
 
     def as_json(self) -> dict:
         return {"name": self.name, "params": self.params}
@@ -155,7 +161,8 @@ class Diagnosis:
             "lookalikes": self.lookalikes,
             "identification": self.identification,
             "evidence": [
-                {"name": e.name, "equation": e.equation, "source": e.source, "cv_gain": e.cv_gain, "t": e.t, "se": e.se}
+                {"name": e.name, "equation": e.equation, "source": e.source, "cv_gain": e.cv_gain, "t": e.t, "se": e.se,
+                 "pinned": e.pinned, "pinned_combinations": e.combinations}
                 for e in self.effects
             ],
             "free_decay": self.decay,
@@ -415,7 +422,8 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     ambiguities, lookalikes, swaps = check_lookalikes(ems, res, opts)
     for eq, alt in swaps.items():  # the look-alike test favours the alternative: it becomes the equation's model
         r = res[eq]
-        res[eq] = EquationResult(eq, r.rows, r.nominal, refit(ems[eq], alt.spec), r.trace, r.location)
+        final = completed_pairs(ems[eq], significant(ems[eq], refit(ems[eq], alt.spec), r.trace), r.trace)
+        res[eq] = EquationResult(eq, r.rows, r.nominal, final, r.trace, r.location)
         found = [f for f in found if not (f.equation == eq and f.source == "inverse dynamics")] + _found(ems[eq], res[eq], [])
     if stick is not None:
         ambiguities += stick.ambiguities
@@ -441,6 +449,10 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     fit_summary = _prediction_metric(ctx, gated, found, prediction)
     closed = _closed_loop(rec, rig, found, opts, notes) if opts.closed_loop else None
     verdicts = verdict.assess(ctx, ems, res, opts.seed, found)
+    ident = identify.identification(ems[ARM], res[ARM].selected)
+    for f in found:
+        if f.source == "inverse dynamics":
+            f.pinned, f.combinations = identify.pinning(ident, f.name)
     located = verdict.with_verdicts(located, res, verdicts)
     return Diagnosis(
         effects=found, fit=fit_summary, located=located, ambiguities=ambiguities, lookalikes=lookalikes,
@@ -448,7 +460,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
         models=ems, prediction=prediction, decay=decay.as_json() if decay is not None else None, decay_result=decay,
         stick=stick, peak=peak, not_predictive=gated.not_predictive, verdicts=verdicts,
         summary=verdict.summary(verdicts),
-        identification=identify.identification(ems[ARM], res[ARM].selected),
+        identification=ident,
     )
 
 
@@ -458,9 +470,82 @@ def _select(ctx: Context, eq: str, opts: Options, rows: np.ndarray | None = None
     nominal, selected, trace = em.select()
     if selected.spec.effects:
         selected = refit(em, selected.spec)
-    selected = latency.settle(em, selected, trace)
+    selected = completed_pairs(em, significant(em, latency.settle(em, selected, trace), trace), trace)
     loc = locate(ctx, eq, em.target(em.spec0()), em.row_mask)
     return em, EquationResult(eq, em.n_rows, nominal, selected, trace, loc)
+
+
+def significant(em: EquationModel, ev: Evaluation, trace: list[dict] | None = None) -> Evaluation:
+    """``ev`` without the effects that, in the final refitted model, are not significant or do not pay for themselves:
+    the selection's rules (select.EquationModel.admissible: t ≥ t_min, or ≥ t_strong with a large held-out gain;
+    physically admissible) and the backward pass's (removing it costs ≥ min_gain of the held-out error) applied once
+    more after the refit, the latency and the look-alike swaps moved the parameters. The weakest is dropped and the
+    rest refitted until all pass. Two arm effects whose estimates are collinear (|r| ≥ identify.COLLINEAR: an input
+    gain and the damping on one constant step at one speed) are judged together — the combination they pin, not
+    either alone (identify.pinning reports it) — when removing both costs ≥ 2·min_gain."""
+    if em.n_rows < 20 * em.th.n_blocks:
+        return ev
+    while ev.spec.effects:
+        names = [n for n in ev.spec.effects if not (n in LUGRE_CONTAINS and "arm_lugre" in ev.spec.effects)]
+        pays = {n: _pays(em, ev, n) for n in names}
+        failing = {n: p for n, p in pays.items() if not p[0]}
+        for pair in identify.collinear_pairs(em, ev):
+            if set(pair) & set(failing) and _pair_pays(em, ev, pair):
+                for n in pair:
+                    failing.pop(n, None)
+        if not failing:
+            return ev
+        # first what is not significant or not physical (lowest t first), then what does not pay (lowest gain first)
+        weakest = min(failing, key=lambda n: (failing[n][1], failing[n][3] if failing[n][1] else failing[n][2]))
+        if trace is not None:
+            trace.append({"step": len(ev.spec.effects), "candidate": weakest, "dropped": True, "cv_gain": failing[weakest][3],
+                          "t": float(ev.t_stat.get(weakest, 0.0)), "params": ev.params[weakest], "accepted": False,
+                          "ok": False, "value": em.nonlinear_value(ev.spec, weakest)})
+        ev = refit(em, ev.spec.without(weakest))
+    return ev
+
+
+def completed_pairs(em: EquationModel, ev: Evaluation, trace: list[dict] | None = None) -> Evaluation:
+    """``ev`` with the missing member of a pinnable pair (identify.PINNABLE_PAIRS: input gain and damping) added when the
+    two would be collinear here and the pair fits as well: on a constant command at a constant speed an input gain
+    alone is one point of a line of (gain, damping) that fit alike — g ≈ 0 with no friction (an arm coasting) as well
+    as the true torque per volt against the true damping — so what the data says is the pair's ratio (the speed per
+    volt), reported with both members and their uncertainty, not a gain at the damping the config assumes."""
+    if em.n_rows < 20 * em.th.n_blocks:
+        return ev
+    for pair in identify.PINNABLE_PAIRS:
+        have = [n for n in pair if n in ev.spec.effects]
+        if len(have) != 1 or not all(em.can_add(ev.spec, n) for n in pair if n not in have):
+            continue
+        other = next(n for n in pair if n not in have)
+        both = refit(em, ev.spec.with_effect(other))
+        physical = all(CANDIDATES[n].plausible(both.params[n], em.ctx.rig, em.ctx.arm_travel) for n in pair)
+        if physical and pair in identify.collinear_pairs(em, both) and both.cv <= ev.cv * (1 + em.th.min_gain):
+            if trace is not None:
+                trace.append({"step": len(ev.spec.effects), "candidate": other, "pair": list(pair), "completed": True,
+                              "cv_gain": (ev.cv - both.cv) / ev.cv if ev.cv else 0.0, "t": float(both.t_stat.get(other, 0.0)),
+                              "params": both.params[other], "accepted": True, "ok": True, "value": None})
+            ev = both
+    return ev
+
+
+def _pays(em: EquationModel, ev: Evaluation, name: str) -> tuple[bool, bool, float, float]:
+    """(whether ``name`` is significant, admissible and worth ≥ min_gain given the others; whether it is significant and
+    admissible; its t; the held-out gain it brings)."""
+    without = em.evaluate(ev.spec.without(name))
+    gain = (without.cv - ev.cv) / without.cv if without.cv else 0.0
+    t = float(ev.t_stat.get(name, 0.0))
+    significant_t = np.isfinite(t) and (t >= em.th.t_min or (gain >= em.th.strong_gain and t >= em.th.t_strong))
+    physical = name in em.ctx.known or CANDIDATES[name].plausible(ev.params[name], em.ctx.rig, em.ctx.arm_travel)
+    return bool(significant_t and physical and gain >= em.th.min_gain), bool(significant_t and physical), t, gain
+
+
+def _pair_pays(em: EquationModel, ev: Evaluation, pair: tuple[str, str]) -> bool:
+    """Whether two collinear effects pay together: removing both costs ≥ 2·min_gain, both physically admissible."""
+    without = em.evaluate(ev.spec.without(pair[0]).without(pair[1]))
+    gain = (without.cv - ev.cv) / without.cv if without.cv else 0.0
+    physical = all(n in em.ctx.known or CANDIDATES[n].plausible(ev.params[n], em.ctx.rig, em.ctx.arm_travel) for n in pair)
+    return physical and gain >= 2 * em.th.min_gain
 
 
 def _found(em: EquationModel, r: EquationResult, notes: list[str]) -> list[Found]:

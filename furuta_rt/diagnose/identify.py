@@ -85,6 +85,7 @@ def identification(em: EquationModel, selected: Evaluation) -> dict | None:
     folds = [values(c) for c in f.fold_coef]
     se = {k: _jackknife(np.array([fo[k] for fo in folds])) for k in full}
     corr = _correlations(st, index)
+    chosen = _selected_values(selected, ctx, k_u)
     params: dict[str, dict] = {}
     names = ["input_gain", "arm_inertia", "arm_viscous", "arm_damping"]
     if "torque_per_volt" in full:
@@ -95,7 +96,9 @@ def identification(em: EquationModel, selected: Evaluation) -> dict | None:
         linked = corr.get(_coef_of(name), {})
         partner = max(linked, key=lambda n: abs(linked[n]), default=None)
         collinear = partner is not None and abs(linked[partner]) >= COLLINEAR and rel >= PINNED_REL_SE / 10
-        params[name] = {"value": v, "se": s, "pinned": bool(rel < PINNED_REL_SE and not collinear)}
+        params[name] = {"value": v, "se": s, "pinned": bool(rel < PINNED_REL_SE and not collinear), "selected": False}
+        if name in chosen:  # one source of truth: a parameter the effects report is reported with their value
+            params[name].update(value=chosen[name][0], se=chosen[name][1], selected=True, joint={"value": v, "se": s})
         if partner is not None:
             params[name]["most_correlated"] = {"name": _param_of(partner, ctx), "r": linked[partner]}
     unit_u = "V" if ctx.model.actuator.kind == "dc_motor" else "N m"
@@ -104,8 +107,62 @@ def identification(em: EquationModel, selected: Evaluation) -> dict | None:
         combos["speed_per_volt"] = "rad/s per V"
     combinations = {n: {"value": full[n], "se": se[n], "unit": unit} for n, unit in combos.items()}
     return {"parameters": params, "combinations": combinations, "inertia_at_rows": m22,
-            "method": "arm equation: input gain, arm inertia and damping fitted jointly with the selected effects; "
-                      "se: jackknife over the held-out time blocks"}
+            "method": "arm equation: input gain, arm inertia and damping fitted jointly with the selected effects "
+                      "(value, se: the selected effects' own where they contain the parameter, the joint fit under "
+                      "'joint'; pinned and the combinations: the joint fit); se: jackknife over the held-out time blocks"}
+
+
+COMBINATION_MEMBERS: dict[str, tuple[str, str]] = {  # the two parameters (effect names) each combination ties together
+    "acceleration_per_command": ("input_gain", "arm_inertia"),
+    "time_constant": ("arm_inertia", "arm_viscous"),
+    "speed_per_volt": ("input_gain", "arm_viscous"),
+}
+PINNABLE_PAIRS = (("input_gain", "arm_viscous"),)  # linear arm effects whose ratio is a physical combination (speed per volt)
+
+
+def _selected_values(selected: Evaluation, ctx: Context, k_u: float) -> dict[str, tuple[float, float]]:
+    """{identification name: (value, se)} of the parameters the selected effects contain, as the effects report them."""
+    p, se, out = selected.params, selected.se, {}
+    if "input_gain" in p:
+        g, s = p["input_gain"]["gain"], se.get("input_gain", {}).get("gain", float("nan"))
+        out["input_gain"] = (g, s)
+        if ctx.model.actuator.kind == "dc_motor":
+            out["torque_per_volt"] = (g * k_u, s * k_u)
+    if "arm_viscous" in p:
+        fv, s = p["arm_viscous"]["Fv"], se.get("arm_viscous", {}).get("Fv", float("nan"))
+        out["arm_viscous"] = (fv, s)
+        out["arm_damping"] = (ctx.back_emf + fv, s)
+    if "arm_inertia" in p:
+        out["arm_inertia"] = (p["arm_inertia"]["J"], se.get("arm_inertia", {}).get("J", float("nan")))
+    return out
+
+
+def collinear_pairs(em: EquationModel, ev: Evaluation) -> list[tuple[str, str]]:
+    """The PINNABLE_PAIRS in ``ev`` whose least-squares estimates are collinear (|r| ≥ COLLINEAR): the data pins their
+    combination, not each one."""
+    pairs = [p for p in PINNABLE_PAIRS if em.equation == ARM and set(p) <= set(ev.spec.effects)]
+    if not pairs:
+        return []
+    st, owners = em.stats(ev.spec)
+    corr = _correlations(st, {n: sl.start for n, sl in owners if sl.stop > sl.start})
+    return [p for p in pairs if abs(corr.get(p[0], {}).get(p[1], 0.0)) >= COLLINEAR]
+
+
+def pinning(ident: dict | None, name: str) -> tuple[bool, list[dict]]:
+    """(whether the data pins effect ``name``'s parameter alone; when not, the pinned combinations it enters, each
+    {name, value, se, unit, members}) from an identification; (True, []) for effects it does not calibrate."""
+    if ident is None or name not in ("input_gain", "arm_viscous", "arm_inertia"):
+        return True, []
+    par = ident["parameters"][name]
+    if par["pinned"]:
+        return True, []
+    combos = [
+        {"name": c, **v, "members": list(COMBINATION_MEMBERS[c])}
+        for c, v in ident["combinations"].items()
+        if name in COMBINATION_MEMBERS[c] and np.isfinite(v["value"]) and v["value"]
+        and v["se"] < PINNED_REL_SE * abs(v["value"])
+    ]
+    return False, combos
 
 
 def _command_scale(ctx: Context) -> float:

@@ -458,8 +458,10 @@ class Candidate:
                 return par["k"] > 0 and hi - lo < MAX_SPRING_TRAVEL and lo <= par["phi0"] <= hi
             case "arm_inertia":
                 return par["J"] > 0.05 * rig.plant.arm_inertia
-            case "input_gain":
-                return 0.05 < par["gain"] < 20.0
+            case "input_gain":  # any positive factor a datasheet or a drive mode may be off by (×0.01 … ×1000 seen:
+                # a driver's gain, a current or velocity mode, a command in per-unit rather than volts); the sign is
+                # checks.conventions' business
+                return MIN_GAIN < par["gain"] < MAX_GAIN
             case "input_delay":
                 return par["delay"] > 0
             case "command_latency":  # shorter than the nominal one (a longer one is an input_delay on top of it), and
@@ -479,6 +481,23 @@ def nominal_latency(rig: RigConfig) -> float:
     if e.command_latency is not None:
         return e.command_latency.delay
     return rig.control.command_delay_ticks / rig.control.rate_hz + (e.input_delay.delay if e.input_delay else 0.0)
+
+
+MIN_GAIN, MAX_GAIN = 1e-3, 1e4  # input_gain: the torque per command unit may be this far off the config's
+KINK_MARGIN = 0.02  # a command within this share of a kink is on neither side of it
+KINK_MIN_SAMPLES, KINK_MIN_SHARE = 10, 0.005  # the commands needed on each side of a kink (count, share of the rows)
+
+
+def kink_supported(u: np.ndarray, kink: float) -> bool:
+    """Whether commands ``u`` (command units, the equation's rows) lie on both sides of a kink at |u| = ``kink`` of the
+    command → torque map (a deadzone edge, a saturation onset): nonzero ones below it and ones above it, each on at
+    least KINK_MIN_SAMPLES and KINK_MIN_SHARE of the rows. On one side only the kink is a gain change or a constant
+    torque (a step of one level: a saturation at that level, or a deadzone below it, is an input gain)."""
+    a = np.abs(np.asarray(u, float))
+    need = max(KINK_MIN_SAMPLES, KINK_MIN_SHARE * len(a))
+    below = np.count_nonzero((a > 0) & (a < (1 - KINK_MARGIN) * kink))
+    above = np.count_nonzero(a > (1 + KINK_MARGIN) * kink)
+    return kink > 0 and below >= need and above >= need
 
 
 MAX_SPRING_TRAVEL = 2 * np.pi  # rad: an arm that turns a whole revolution cannot be tied by a cable

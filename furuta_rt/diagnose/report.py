@@ -55,10 +55,17 @@ def text(d: Diagnosis) -> list[str]:
     if d.effects:
         lines.append("effects found (held-out error reduction, significance):")
         for e in d.effects:
-            how = (f"{e.equation} equation, −{100 * e.cv_gain:.1f} %, t = {e.t:.0f}" if e.source == "inverse dynamics"
+            alone = "" if e.pinned or not e.combinations else " alone"
+            how = (f"{e.equation} equation, −{100 * e.cv_gain:.1f} %, t = {e.t:.0f}{alone}" if e.source == "inverse dynamics"
                    else f"{e.equation} equation, from the {e.source}" + (
                        f": −{100 * e.cv_gain:.1f} %, t = {e.t:.0f}" if e.source.endswith("windows") else ""))
             lines.append(f"  {e.name}: {fmt_params(e.params, e.se)}   [{how}]")
+            if not e.pinned:
+                lines.append("    not pinned alone by this recording; " + (
+                    "pinned: " + "; ".join(f"{c['name']} = {c['value']:.4g} ± {c['se']:.2g} {c['unit']} "
+                                           f"({' with '.join(c['members'])})" for c in e.combinations)
+                    if e.combinations else "nor any combination of it (its relative error in the joint fit of "
+                    "input gain, arm inertia and damping is ≥ 10 %: see identification)"))
     else:
         lines.append("no library effect found (whether the nominal model explains the recording: the verdicts above)")
     for a in d.ambiguities:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from furuta_rt.diagnose.fitting import Blocks, Fit, Stats, fit, fit_profiled, paired_t
-from furuta_rt.diagnose.library import ARM, CANDIDATES, Candidate, Context, InputPath
+from furuta_rt.diagnose.library import ARM, CANDIDATES, Candidate, Context, InputPath, kink_supported
 
 
 @dataclass(frozen=True)
@@ -141,7 +141,8 @@ class EquationModel:
         return Stats.of(y, X, self.blocks), owners
 
     def _finish(self, spec: Spec, f: Fit, owners: list[tuple[str, slice]], nl_folds: np.ndarray | None = None,
-                nl_name: str | None = None, nl_step: float = 0.0, nl_value: float = 0.0) -> Evaluation:
+                nl_name: str | None = None, nl_step: float = 0.0, nl_value: float = 0.0,
+                edges: tuple[float, float, float] | None = None) -> Evaluation:
         gain = self.ctx.known_gain
         for name, sl in owners:
             if name == "input_gain":
@@ -168,10 +169,33 @@ class EquationModel:
             if kind == "vs":  # LuGre's size is its Stribeck peak (linear, judged above); vs only shapes it
                 se[nl_name] = {**se.get(nl_name, {}), "vs": err}
             else:
-                null = 0.0 if kind == "inertia" else getattr(self.spec0().path, path_field(kind)) or 0.0  # type: ignore[arg-type]
-                tstat[nl_name] = np.inf if nl_name == "input_saturation" else abs(nl_value - null) / max(err, 1e-300)
+                tstat[nl_name] = self._nonlinear_t(nl_name, nl_value, err, edges)
                 se[nl_name] = {next(iter(params[nl_name])): err}
         return Evaluation(spec, f, params, tstat, se)
+
+    def _nonlinear_t(self, name: str, value: float, err: float, edges: tuple[float, float, float] | None) -> float:
+        """Significance of a nonlinear parameter's departure from the nominal model (ΔJ, delay, width; a saturation:
+        how far below the largest command its limit sits). 0 — not identified — when the optimum sits on an edge of
+        the range searched (``edges``: its ends and step) away from the nominal value (the data asks for more than
+        the range, or for something else: a profile that runs away is no estimate, and the spread of fold optima
+        pinned to one edge is not its error), and for a deadzone or saturation without commands on both sides of
+        its kink (kink_supported)."""
+        kind = CANDIDATES[name].nonlinear
+        if kind in ("deadzone", "limit"):
+            u = self.ctx.prep.u[self.blocks.rows]
+            if not kink_supported(u, value):
+                return 0.0
+        if kind == "limit":
+            null = float(np.max(np.abs(self.ctx.prep.u[self.blocks.rows])))
+            if self.spec0().path.limit is not None:
+                null = min(null, self.spec0().path.limit)
+        else:
+            null = 0.0 if kind == "inertia" else getattr(self.spec0().path, path_field(kind)) or 0.0  # type: ignore[arg-type]
+        if edges is not None:
+            lo, hi, step = edges
+            if (value <= lo + step and abs(lo - null) > step) or (value >= hi - step and abs(hi - null) > step):
+                return 0.0
+        return abs(value - null) / max(err, 1e-300)
 
     def residual(self, spec: Spec, coef: np.ndarray | None = None) -> np.ndarray:
         """The (inertia-weighted) residual of ``spec`` with linear coefficients ``coef`` (none: the target)."""
@@ -244,7 +268,8 @@ class EquationModel:
         f, value, folds = fit_profiled(stats_of, grid)
         step = float(np.median(np.diff(grid))) if len(grid) > 1 else 0.0
         _, owners = self.stats(new.with_value(cand.nonlinear, value))
-        return self._finish(new.with_value(cand.nonlinear, value), f, owners, folds, name, 0.1 * step, value)
+        edges = (float(grid[0]), float(grid[-1]), step) if len(grid) > 1 else None
+        return self._finish(new.with_value(cand.nonlinear, value), f, owners, folds, name, 0.1 * step, value, edges)
 
     def bic_penalty(self, k_added: int, sse: float) -> float:
         """ΔSSE a new parameter must buy on the effective sample count (BIC with n_eff = n / corr_len)."""

@@ -469,7 +469,27 @@ def realistic_cases() -> list[RealisticCase]:
         _r("macstepien", "step", 204, 4.0, 1.5, 3, held_out=True),
         _r("macstepien", "balance", 205, 0.7, 0.8, 1.5, "arm_bias.tau=-0.002", held_out=True),
         _r("macstepien", "sine", 206, 6.0, 0.6, 0, *spring_m, held_out=True),
+    ] + gross_gain_cases()
+
+
+# ------------------------------------------------------------- realistic: gross torque-per-volt errors (helper realgain)
+def gross_gain_cases() -> list[RealisticCase]:
+    """Torque per volt ×0.1 and ×30…×70 the datasheet's (a driver's gain, a current or velocity mode, a command in
+    per-unit: the real macstepien 0.1 / 0.575 files spin the arm ~10× faster per unit than its volt files), on steps of
+    several levels and on one step from rest (a two-level command: only gain/damping through the speed per volt, no
+    kink of the command map, can be read there). Named "… gross×g"; the first five in-sample, the last two held out
+    (generated once, not tuned on)."""
+    cases = [
+        (_r("macstepien", "single_step", 301, 50.0, 1.0, 1, duration=6.0), 50),
+        (_r("macstepien", "step", 302, 0.1, 1.0, 1), 0.1),
+        (_r("qube_servo2", "step", 303, 30.0, 1.0, 1), 30),
+        (_r("qube_servo2", "single_step", 304, 0.1, 1.5, 1, duration=6.0), 0.1),
+        (_r("macstepien", "sine", 305, 70.0, 0.5, 1), 70),
+        # held out
+        (_r("macstepien", "single_step", 401, 60.0, 0.7, 2, duration=8.0, held_out=True), 60),
+        (_r("qube_servo2", "step", 402, 0.15, 1.3, 1, held_out=True), 0.15),
     ]
+    return [dataclasses.replace(c, name=f"{c.name} gross×{g:g}") for c, g in cases]
 
 
 def generate_realistic(case: RealisticCase, cache: Path | None = None) -> Recording:
@@ -496,14 +516,15 @@ def arm_combinations(rig: RigConfig, gain: float, J: float, Fv: float) -> dict[s
 
 def _reported_arm(rig: RigConfig, reported: dict[str, dict[str, float]],
                   identification: dict | None = None) -> tuple[float, float, float]:
-    """(gain, J, Fv) of the arm as the diagnosis reports it: its jointly calibrated ``identification.parameters``
-    when it has them, else its effects (the config's values where none is reported)."""
+    """(gain, J, Fv) of the arm as the diagnosis reports it: its jointly calibrated ``identification.parameters`` (the
+    joint fit's values) when it has them, else its effects (the config's values where none is reported)."""
     g = reported.get("input_gain", {}).get("gain", 1.0)
     J = reported.get("arm_inertia", {}).get("J", rig.plant.arm_inertia)
     Fv = reported.get("arm_viscous", {}).get("Fv", 0.0)
     par = (identification or {}).get("parameters") or {}
     if all(k in par for k in ("input_gain", "arm_inertia", "arm_viscous")):
-        g, J, Fv = (float(par[k]["value"]) for k in ("input_gain", "arm_inertia", "arm_viscous"))
+        # the joint fit's values (all three free): a parameter the effects report carries its joint value apart
+        g, J, Fv = (float(par[k].get("joint", par[k])["value"]) for k in ("input_gain", "arm_inertia", "arm_viscous"))
     return g, J, Fv
 
 
