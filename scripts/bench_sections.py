@@ -768,14 +768,15 @@ def _log_producer(conn: Any, path: str | None, rate: int, seconds: float) -> Non
     batch, put_nowait of each rate/10-tick batch. ``path`` None: the same tick without logging."""
     from furuta_rt.config import load_rig
     from furuta_rt.io.mcap_log import run_metadata
+    from furuta_rt.runtime.channel import Channel, Flag
     from furuta_rt.runtime.logger import LogSetup, logger_process
     from furuta_rt.runtime.rt import setup_realtime
 
     ctx = multiprocessing.get_context("spawn")
     q = proc = None
     if path is not None:
-        q = ctx.Queue(maxsize=200)
-        ready = ctx.Event()
+        q = Channel(200)  # as the daemon: a pipe and a feeder thread
+        ready = Flag()
         proc = ctx.Process(target=logger_process, args=(LogSetup(path=path, rig=load_rig("thesis")), q, ready))
         proc.start()
         ready.wait(CHILD_TIMEOUT_S)

@@ -20,6 +20,7 @@ from furuta_rt.io import log_schema as ls
 from furuta_rt.io.mcap_log import run_metadata
 from furuta_rt.io.mcap_read import read_log
 from furuta_rt.replay.core import replay_log
+from furuta_rt.runtime.channel import Channel, Flag
 from furuta_rt.runtime.logger import LogSetup, TickLog, logger_process
 
 
@@ -111,10 +112,11 @@ def test_a_killed_run_is_readable_up_to_its_last_flush(tmp_path: Path, rig: RigC
 
 
 def test_logger_process_through_a_spawn_queue(tmp_path: Path, rig: RigConfig) -> None:
+    """The daemon's channel (a pipe with a feeder thread, no named semaphore) into a spawned logger."""
     items, n = loop_items(rig, 1.0)
     ctx = multiprocessing.get_context("spawn")
-    q = ctx.Queue(maxsize=100)
-    ready = ctx.Event()
+    q = Channel(100)
+    ready = Flag()
     path = tmp_path / "run.mcap"
     proc = ctx.Process(target=logger_process, args=(LogSetup(path=str(path), rig=rig, run={"mode": "none"}), q, ready))
     proc.start()
@@ -127,3 +129,27 @@ def test_logger_process_through_a_spawn_queue(tmp_path: Path, rig: RigConfig) ->
     assert proc.exitcode == 0
     log = read_log(path)
     assert not log.recovered and log.n_ticks == n and log.events[-1]["message"] == "done"
+
+
+def test_channel_is_bounded_never_blocks_and_reports_the_writer_gone() -> None:
+    """Channel: put_nowait raises queue.Full once ``maxsize`` items wait (the reader is behind), items
+    arrive in order, and the reader's get raises EOFError when the writer's end is gone."""
+    import queue as queue_mod
+
+    ch = Channel(3)
+    big = b"x" * 200_000  # larger than a pipe's buffer: the feeder blocks on the first one
+    ch.put_nowait(big)
+    deadline = time.monotonic() + 10.0
+    while ch._items.qsize() and time.monotonic() < deadline:  # the feeder took the first item
+        time.sleep(0.01)
+    for _ in range(3):
+        ch.put_nowait(big)
+    with pytest.raises(queue_mod.Full):
+        ch.put_nowait(big)
+    got = [ch.get(timeout=10.0) for _ in range(4)]
+    assert got == [big] * 4
+    with pytest.raises(queue_mod.Empty):
+        ch.get(timeout=0.05)
+    ch._writer.close()
+    with pytest.raises(EOFError):
+        ch.get(timeout=1.0)

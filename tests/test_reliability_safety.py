@@ -314,8 +314,9 @@ def _semaphores(pid: int) -> set[str]:
 
 def check_kill_daemon_alone(tmp: Path) -> tuple[list[str], str]:
     """Item 3: ``furuta-rt run --mock --log`` as a user starts it; SIGKILL of the daemon process only (not
-    its group). Its hil-mock child must end by itself (it was left running, at 10 % CPU), and no named
-    semaphore of the run may stay in /dev/shm once its processes are gone."""
+    its group). Its hil-mock child must end by itself (it was left running, at 10 % CPU). No process of
+    the run holds a named semaphore (multiprocessing's Queue/Event made 13, left in /dev/shm for good when
+    the whole group is killed, the resource tracker with it), and every child ends."""
     d = DaemonProcess(["--mock", "--duration", "120", "--no-tui", "--log", str(tmp / "run.mcap")])
     children: list[int] = []
     problems = []
@@ -323,9 +324,11 @@ def check_kill_daemon_alone(tmp: Path) -> tuple[list[str], str]:
         d.wait_for_line("→ balancing", timeout=120)
         children = d.children()
         mocks = [p for p in children if "hil_mock" in _cmdline(p)]
-        sems = _semaphores(d.pid)
-        if len(mocks) != 1 or not sems:
-            return [f"unexpected set-up: children {[_cmdline(p) for p in children]}, semaphores {sems}"], ""
+        if len(mocks) != 1 or not any("spawn_main" in _cmdline(p) for p in children):
+            return [f"unexpected set-up: children {[_cmdline(p)[:80] for p in children]}"], ""
+        sems = set().union(*(_semaphores(p) for p in [d.pid, *children]))
+        if sems:
+            problems.append(f"{len(sems)} named semaphores held (left in /dev/shm by a group SIGKILL): {sorted(sems)[:3]}")
         os.kill(d.pid, signal.SIGKILL)
         d.proc.wait(30)
         t_kill = time.monotonic()
@@ -346,7 +349,7 @@ def check_kill_daemon_alone(tmp: Path) -> tuple[list[str], str]:
         for p in children:
             if _alive(p):
                 os.kill(p, signal.SIGKILL)
-    return problems, f"mock gone {t_mock:.2f} s after the kill; {len(sems)} semaphores removed"
+    return problems, f"mock gone {t_mock:.2f} s after the kill; {len(sems)} named semaphores"
 
 
 def test_sigkill_of_the_daemon_alone_ends_its_mock_and_leaves_no_semaphore(tmp_path: Path) -> None:

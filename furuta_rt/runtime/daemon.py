@@ -4,7 +4,8 @@ Process layout (multiprocessing 'spawn': children start from a clean interpreter
 
     control (this process)  read → update → write at the device's rate; gc frozen; SCHED_FIFO,
                             mlockall and CPU affinity when permitted
-    logger                  MCAP writing, fed tick batches through a bounded queue
+    logger                  MCAP writing, fed tick batches through a bounded queue on a pipe (no named
+                            semaphores: nothing is left in /dev/shm whatever kills the group)
     dashboard               rich Live view, fed ≤ 10 snapshots/s (only with a terminal)
     hil-mock (--mock)       the simulated DAQ on a pseudo-terminal
 
@@ -36,6 +37,7 @@ from firmware_protocol import DEFAULT_WATCHDOG_MS
 from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
 from furuta_rt.io.mcap_log import run_metadata
+from furuta_rt.runtime.channel import Channel, Flag
 from furuta_rt.runtime.hardware import DeviceInfo, SerialHardware
 from furuta_rt.runtime.logger import LogSetup, logger_process
 from furuta_rt.runtime.rt import setup_realtime
@@ -115,9 +117,9 @@ class _Children:
 
     def spawn_logger(self, setup: LogSetup) -> None:
         """Start the logger process (returns at once; ``wait_logger`` waits for it to be ready)."""
-        self.log_q = self.ctx.Queue(maxsize=LOG_QUEUE_BATCHES)
-        self._ready = self.ctx.Event()
-        self.log_failed = self.ctx.Event()
+        self.log_q = Channel(LOG_QUEUE_BATCHES)  # pipes, not multiprocessing's named semaphores (channel.py)
+        self._ready = Flag()
+        self.log_failed = Flag()
         proc = self.ctx.Process(target=logger_process, args=(setup, self.log_q, self._ready, self.log_failed),
                                 name="furuta-rt-logger")
         proc.start()
@@ -131,7 +133,7 @@ class _Children:
     def start_dashboard(self, title: str) -> None:
         from furuta_rt.runtime.dashboard import dashboard_process
 
-        self.dash_q = self.ctx.Queue(maxsize=2)
+        self.dash_q = Channel(2)
         proc = self.ctx.Process(target=dashboard_process, args=(self.dash_q, title), name="furuta-rt-dashboard")
         proc.start()
         self.dashboard = proc

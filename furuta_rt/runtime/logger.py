@@ -144,12 +144,13 @@ def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None) -> N
         log = None
 
     while True:
+        gone = False
         try:
             item = q.get(timeout=0.2)
         except queue.Empty:
             item = None
-        except (EOFError, OSError):
-            break
+        except (EOFError, OSError):  # the writer's end closed: the control process is gone
+            item, gone = None, True
         if item is not None and item[0] == "close" and log is None:
             break
         try:
@@ -161,7 +162,7 @@ def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None) -> N
                 last_flush = now
         except (OSError, UserError) as err:
             fail(err)
-        if item is None and parent is not None and not parent.is_alive():
+        if gone or (item is None and parent is not None and not parent.is_alive()):
             if log is not None:
                 with contextlib.suppress(OSError, UserError):
                     log.event(time.time_ns(), "ERROR", "the control process ended without closing the log")
