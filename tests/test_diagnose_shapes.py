@@ -196,3 +196,29 @@ def test_no_recording_shape_raises_anything_but_a_one_line_user_error(rig, base)
         assert set(out["equations"]) == {"arm", "pendulum"}
 
     check()
+
+
+@pytest.fixture(scope="module")
+def dc_step(tmp_path_factory) -> tuple[Recording, object]:
+    """A voltage step on a DC-motor rig shaped like the macstepien recordings (the arm at rest, then spinning): the
+    command is constant while the arm moves, so the arm regression's input gain is not identified there."""
+    case = next(c for c in suite.realistic_cases() if c.excitation == "single_step" and not c.held_out)
+    return suite.generate_realistic(case, tmp_path_factory.mktemp("suite")), load_rig(case.shape)
+
+
+@pytest.mark.parametrize(("column", "words"), [("u", "the sign of u appears reversed"),
+                                               ("phi", "the sign of φ appears reversed"),
+                                               ("theta", "the sign of θ appears reversed")])
+def test_a_reversed_step_is_caught_by_the_command_s_work(dc_step, column, words) -> None:
+    """Energy balance (eq. 4's E and friction that only dissipates): a step whose command does negative work on an
+    arm that gains energy has u or φ reversed, and positive work tells a reversed θ (the pendulum row) from φ; as
+    recorded, the same step passes the checks."""
+    from furuta_rt.diagnose import checks
+    from furuta_rt.diagnose.signals import prepare
+
+    rec, rig = dc_step
+    assert checks.conventions(prepare(rec, rig), rig) is not None  # as recorded: no error
+    bad = dataclasses.replace(rec, **{column: -getattr(rec, column)})
+    with pytest.raises(UserError, match=words) as err:
+        checks.conventions(prepare(bad, rig), rig)
+    assert "J of work on the arm" in str(err.value) and f"--map {column}.scale=-1" in str(err.value)

@@ -12,6 +12,11 @@ Eq. 4 ties the columns together (thesis section 2.2; FurutaPlant.inverse_dynamic
 So: pendulum row reversed, arm gain positive → θ reversed; both reversed → φ reversed; only the gain → u (or
 θ and φ together, the mirror image of the rig, which eq. 4 cannot tell from u reversed).
 
+Where the command is constant while the arm moves (a voltage step, a spinning arm) the arm row's gain is confounded
+with the friction and not identified; there the energy balance decides: g·∫k u φ̇ dt = ΔE + D with D ≥ 0 (friction
+and back EMF only dissipate), so a command that did net negative work on an arm that turned more than a revolution
+(no cable spring to store it) while the rig kept its energy means a negative torque per command.
+
 Units: an angle logged in degrees and read as radians makes the pendulum row balance only after the angle is
 scaled by π/180 (exactly in the linear terms for one angle alone; through sin θ and the centrifugal term for
 both), and a hanging pendulum rest at θ ≈ ±180, which is no rest angle in radians.
@@ -46,6 +51,7 @@ GAIN_T = 6.0  # |t| of a negative input gain (block standard error) to declare i
 N_BLOCKS = 10
 ROW_STEP = 0.008  # s between the rows the checks use
 REST_DEGREES = (170.0, 190.0)  # |θ| at rest read as this: hanging, in degrees
+WORK_GAIN_FLOOR = 0.01  # a torque per command below this share of the config's is not a rig that was run
 
 
 @dataclass(frozen=True)
@@ -116,6 +122,52 @@ def _arm_gain(ta: np.ndarray, st: States, prep: Prepared, rows: np.ndarray, h: H
     return g, (float(coef[0]) / se if se > 0 else math.copysign(math.inf, g))
 
 
+def _command_work(st: States, prep: Prepared, h: Hypothesis, model: RigModel) -> tuple[float, float, float] | None:
+    """(W, ΔE, travel) of the energy balance g·W = ΔE + D: W = ∫ k·u·φ̇ dt the work the command does at the
+    config's torque per command k, ΔE the change of eq. 4's mechanical energy (FurutaPlant.energy), D ≥ 0 what
+    friction and the motor's back EMF dissipate (g: the true torque per command over the config's), summed over
+    the recording's contiguous stretches clear of the filter's edges; travel is the arm's ptp. None when there is
+    no such stretch. With g > 0 the rig can only lose energy where W < 0, at least g·|W| of it."""
+    a = model.actuator
+    k = a.gain * (a.motor.torque_per_volt if a.kind == "dc_motor" and a.motor is not None else 1.0)
+    kt = h.theta_sign * h.theta_scale
+    th, thd, phd = kt * st.theta - model.theta_offset, kt * st.theta_dot, h.phi_scale * st.phi_dot
+    power = k * st.held(prep.u, prep.command_lag) * phd
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], prep.valid.astype(np.int8), [0]])))
+    work = gained = 0.0
+    for i0, i1 in zip(edges[::2], edges[1::2], strict=True):
+        if i1 - i0 < 2:
+            continue
+        work += float(np.sum(power[i0:i1])) * prep.dt
+        e = model.plant.energy(th[[i0, i1 - 1]], thd[[i0, i1 - 1]], phd[[i0, i1 - 1]])
+        gained += float(e[1] - e[0])
+    if work == 0.0:
+        return None
+    return work, gained, float(np.ptp(h.phi_scale * st.phi[prep.valid]))
+
+
+def _work_sign(work: tuple[float, float, float] | None) -> tuple[float, str] | None:
+    """(sign of the torque per command, the evidence) from the energy balance g·W = ΔE + D, or None. Decisive on an
+    arm that turned more than a revolution (no cable spring can store work there) when the rig did not lose the
+    energy the other sign needs: with W < 0 a positive g would be at most max(−ΔE, 0)/|W| × the config's, with
+    W > 0 a negative g at least as small (both below WORK_GAIN_FLOOR)."""
+    if work is None:
+        return None
+    w, de, travel = work
+    bound = max(-de, 0.0) / abs(w)
+    if travel < 2 * math.pi or bound >= WORK_GAIN_FLOOR:
+        return None
+    sign = 1.0 if w > 0 else -1.0
+    did = f"the command did {w:+.3g} J of work on the arm (at the config's torque per command)"
+    other = "negative" if w > 0 else "positive"
+    if de >= 0:
+        why = f"while the rig's energy rose by {de:.3g} J: with friction only dissipating, a {other} torque per command cannot do that"
+    else:
+        why = (f"while the rig lost only {-de:.3g} J: with friction only dissipating, a {other} torque per command would "
+               f"have to be below {bound:.2g} × the config's in size")
+    return sign, f"{did} {why}"
+
+
 def _moves(x: np.ndarray, lsb: float, counts: int = 50) -> bool:
     return bool(np.ptp(x) >= counts * lsb)
 
@@ -176,13 +228,17 @@ def conventions(prep: Prepared, rig: RigConfig) -> list[str]:
     gain = None
     if prep.commanded and float(np.std(prep.u[rows])) > 0 and _moves(st.phi[rows], prep.phi_lsb):
         gain = _arm_gain(arm_torque[chosen.hypothesis], st, prep, rows, chosen.hypothesis, model.actuator.gain)
-    arm_reversed = gain is not None and gain[0] < 0 and gain[1] <= -GAIN_T
     pend_text = (f"eq. 4's pendulum row balances only with the coupling γ cos θ φ̈ reversed (residual "
                  f"{100 * flipped.relative:.0f} % of its torque scale, {100 * same.relative:.0f} % as read)")
     arm_text = "" if gain is None else f"the arm row's input gain is {gain[0]:+.2f} × the config's (t = {gain[1]:+.0f})"
+    arm_sign = None if gain is None or abs(gain[1]) < GAIN_T else math.copysign(1.0, gain[0])  # decisive, or None
+    by_work = _work_sign(_command_work(st, prep, chosen.hypothesis, model)) if prep.commanded else None
+    if by_work is not None and arm_sign is None:  # a step or a spin: the regression's gain is not identified there
+        arm_sign, arm_text = by_work
+    arm_reversed = arm_sign == -1.0
     if pend_reversed and arm_reversed:
         raise UserError(f"the sign of φ appears reversed relative to the rig: {pend_text}, and {arm_text}; {_fix('phi', -1)}")
-    if pend_reversed and gain is not None and gain[0] > 0 and gain[1] >= GAIN_T:
+    if pend_reversed and arm_sign == 1.0:
         raise UserError(f"the sign of θ appears reversed relative to the rig: {pend_text}, while {arm_text}; "
                         f"{_fix('theta', -1)}")
     if pend_reversed:
@@ -198,7 +254,7 @@ def conventions(prep: Prepared, rig: RigConfig) -> list[str]:
         raise UserError(f"the sign of u or of φ appears reversed relative to the rig: {arm_text}, and the pendulum row "
                         f"cannot tell which (residual {100 * same.relative:.0f} % of its torque scale as read, "
                         f"{100 * flipped.relative:.0f} % with θ reversed); {_fix('u', -1)} or {_fix('phi', -1, short=True)}")
-    if gain is not None and gain[0] < 0 and gain[1] < -2:
+    if arm_sign is None and gain is not None and gain[0] < 0 and gain[1] < -2:
         notes.append(f"{arm_text}: a negative gain, not decisive — check the sign of u and φ if the diagnosis looks wrong")
     return notes
 

@@ -66,10 +66,10 @@ class FurutaPlant:
         return tau_pend, tau_arm
 
     def energy(self, theta: float, theta_dot: float, phi_dot: float) -> float:
-        """Total mechanical energy T + V (J); V = ε cos θ, so upright at rest has E = ε."""
+        """Total mechanical energy T + V (J); V = ε cos θ, so upright at rest has E = ε. Works on arrays too."""
         a, b, c, e = self.p.alpha, self.p.beta, self.p.gamma, self.p.epsilon
-        s = math.sin(theta)
-        co = math.cos(theta)
+        s = np.sin(theta)
+        co = np.cos(theta)
         kinetic = 0.5 * ((b + a * s * s) * phi_dot**2 + 2.0 * c * co * theta_dot * phi_dot + a * theta_dot**2)
         return kinetic + e * co
 
