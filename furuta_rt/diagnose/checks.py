@@ -161,7 +161,8 @@ def _work_sign(work: tuple[float, float, float] | None) -> tuple[float, str] | N
     did = f"the command did {w:+.3g} J of work on the arm (at the config's torque per command)"
     other = "negative" if w > 0 else "positive"
     if de >= 0:
-        why = f"while the rig's energy rose by {de:.3g} J: with friction only dissipating, a {other} torque per command cannot do that"
+        why = (f"while the rig's energy rose by {de:.3g} J: with friction only dissipating, a {other} torque per command "
+               "cannot do that")
     else:
         why = (f"while the rig lost only {-de:.3g} J: with friction only dissipating, a {other} torque per command would "
                f"have to be below {bound:.2g} × the config's in size")
