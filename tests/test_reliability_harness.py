@@ -341,7 +341,8 @@ class _Recorder:
         self.accepted: list[bool] = []  # per COMMAND: accepted by the firmware (PROTOCOL.md §6)
         self.stops: list[tuple[int, int]] = []  # wall ns, dev ns of each STOP received
         self.outputs: list[tuple[int, int, float]] = [(time.time_ns(), fw.clock_ns, fw.output)]  # wall ns, dev ns, u
-        self.output_ticks: list[int] = [fw.seq]  # per output change: seq of the next SAMPLE (the tick it holds until)
+        self.output_ticks: list[int] = [fw.seq]  # per output change: the first device tick (SAMPLE seq) it is in force
+        in_tick = [False]
         self.events: list[tuple[int, int, str]] = []  # wall ns, dev ns, what
         self.samples_intact: list[tuple[int, int]] = []  # (session, seq) of SAMPLEs that left the link unharmed
         self.samples_damaged: list[tuple[int, int]] = []
@@ -362,7 +363,9 @@ class _Recorder:
         def _set_output(u: float, *args: Any, **kwargs: Any) -> Any:
             if u != fw.output:
                 self.outputs.append((time.time_ns(), fw.clock_ns, u))
-                self.output_ticks.append(fw.seq)
+                # set at tick j (after SAMPLE j, seq already j + 1): in force from tick j; between ticks (STOP,
+                # hang-up) with SAMPLE j the last sent: from tick j + 1 (and for the rest of period j)
+                self.output_ticks.append(fw.seq - 1 if in_tick[0] else fw.seq)
             return set_output(u, *args, **kwargs)
 
         def _on_hello(*args: Any, **kwargs: Any) -> Any:
@@ -383,7 +386,16 @@ class _Recorder:
             return skip(periods, *args, **kwargs)
 
         fw._on_command, fw._set_output, fw._on_hello, fw._on_stop = _on_command, _set_output, _on_hello, _on_stop
-        fw.reboot, fw.hangup, fw.skip = _reboot, _hangup, _skip
+        streaming_tick = fw._streaming_tick
+
+        def _streaming_tick(*args: Any, **kwargs: Any) -> Any:
+            in_tick[0] = True
+            try:
+                return streaming_tick(*args, **kwargs)
+            finally:
+                in_tick[0] = False
+
+        fw.reboot, fw.hangup, fw.skip, fw._streaming_tick = _reboot, _hangup, _skip, _streaming_tick
         link = device.link
         tx = link.tx
 

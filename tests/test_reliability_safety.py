@@ -62,10 +62,9 @@ class _FailingSink(ListSink):
 
 
 def _output_from(rec: _Recorder, tick: int) -> list[float]:
-    """The device's outputs in force from device tick ``tick`` on (an output set at tick j, after SAMPLE j,
-    is recorded with the next seq j + 1; STOP between ticks j and j + 1 likewise)."""
+    """The device's outputs in force from device tick ``tick`` on (``_Recorder.output_ticks``)."""
     ticks, outs = rec.output_ticks, [u for _, _, u in rec.outputs]
-    first = max(i for i, t in enumerate(ticks) if t <= tick + 1)
+    first = max(i for i, t in enumerate(ticks) if t <= tick)
     return outs[first:]
 
 
@@ -76,9 +75,10 @@ _REASON = {"operator stop": "operator_stop", "trip": "theta_limit", "link loss":
 def check_way_out(how: str, after_batches: int = 8) -> tuple[list[str], str]:
     """Item 1 at the device: run the loop against hil_mock's firmware until ``how`` happens (after about
     ``after_batches`` tenths of a second of balancing). The host's u = 0 must be accepted (no COMMAND
-    discarded, PROTOCOL.md §6) and the actuator zero from the device tick after the last SAMPLE the host
-    read, k + 1 (link loss: the device's bytes are lost, the host read k, the device sent k + 1, so from
-    k + 2), with STOP received."""
+    discarded, PROTOCOL.md §6), STOP received, and the actuator zero within one period: k being the last
+    SAMPLE the host read, from tick k + 1 when the host noticed before answering k (operator stop, θ
+    trip); from tick k + 2 when k already had its ENABLE COMMAND, which the device applies at k + 1
+    (exception after the tick's write; link loss: the host read k and answered it, SAMPLE k + 1 was lost)."""
     cfg = build_config(device={"rate_hz": RATE, "pacing": "lockstep", "priority": "normal", "watchdog_ms": 5000})
     rig = load_rig("thesis")
     # the device waits up to 10 s for each answer (not 1 s): the next tick comes after the host acted, however loaded
@@ -124,14 +124,13 @@ def check_way_out(how: str, after_batches: int = 8) -> tuple[list[str], str]:
     discarded = [c for c, ok in zip(rec.commands, rec.accepted, strict=True) if not ok]
     if discarded:
         problems.append(f"{len(discarded)} COMMANDs discarded by the device: {discarded[:3]}")
-    first_zero = k + 2 if how == "link loss" else k + 1
+    first_zero = k + 2 if how in ("link loss", "exception") else k + 1
     outs = _output_from(rec, first_zero)
     if set(outs) != {0.0}:
         problems.append(f"outputs from tick {first_zero}: {outs[:4]} (the host read up to {k})")
     if not rec.stops:
         problems.append("no STOP reached the device")
-    zero_at = rec.output_ticks[-1] - 1  # the tick after which the output went to zero for good
-    return problems, f"{how}: host read up to seq {k}, output zero from tick {zero_at + 1}"
+    return problems, f"{how}: host read up to seq {k}, output zero from tick {rec.output_ticks[-1]}"
 
 
 def _after_batches(sink: ListSink, batches: int, action: Any) -> Any:
