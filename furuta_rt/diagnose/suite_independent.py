@@ -19,8 +19,10 @@ the command of tick k acts from tick k + latency); what differs is everything ar
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from scipy import linalg, signal
@@ -188,18 +190,36 @@ def simulate(case: Case, duration: float, noise: bool = True) -> Recording:
     return Recording(t=np.arange(n) * h, **rec, extra=true, meta={"case": case.name, "simulator": "independent (scipy)"})
 
 
+def generate(case: Case, duration: float, cache: Path | None = None) -> Recording:
+    """The case's recording (from ``cache`` when there: suite.cached)."""
+    from furuta_rt.diagnose.suite import cached
+
+    key = hashlib.sha1(repr(("independent", case, duration, INDEPENDENT_CACHE_VERSION)).encode()).hexdigest()[:16]
+    return cached(key, cache, lambda: simulate(case, duration))
+
+
+INDEPENDENT_CACHE_VERSION = 1
+
+
 def score(case: Case, d: dict) -> dict:
+    """Per case: each true effect named with its main parameter within 20 % (a latency within half a tick), or only as
+    the declared look-alike of what was named; the effects named that the case does not have (false discoveries,
+    counted apart when they stand in for a true effect as its declared look-alike); the verdicts."""
     found = {e["name"]: e["params"] for e in d["effects"]}
-    named = {}
-    for name, params in case.truth.items():
-        key, true = next(iter(params.items()))
-        got = found.get(name, {}).get(key)
-        named[name] = got is not None and (abs(got - true) <= 0.2 * abs(true) if true else abs(got) < 0.5 / RATE)
-    false = [n for n in found if n not in case.truth]
+    alternatives = {a["alternative"]["name"]: (a["effects"][0], a["alternative"]["params"]) for a in d["ambiguities"]}
+
+    def right(name: str, params: dict[str, float] | None) -> bool:
+        key, true = next(iter(case.truth[name].items()))
+        got = (params or {}).get(key)
+        return got is not None and (abs(got - true) <= 0.2 * abs(true) if true else abs(got) < 0.5 / RATE)
+
+    named = {n: right(n, found.get(n)) for n in case.truth}
+    lookalike = {n: not named[n] and n in alternatives and right(n, alternatives[n][1]) for n in case.truth}
+    standing_in = {alternatives[n][0] for n, ok in lookalike.items() if ok}
+    false = [n for n in found if n not in case.truth and n not in standing_in]
     verdicts = {eq: v.get("verdict") for eq, v in d["equations"].items()}
     ok_verdict = (all(v in ("partly_explained", "unexplained") for v in verdicts.values() if v != "consistent")
                   and any(v in ("partly_explained", "unexplained") for v in verdicts.values())) if case.outside else None
-    return {"case": case.name, "found": found, "named": named, "false": false, "verdicts": verdicts,
-            "outside_verdict_right": ok_verdict, "summary": d.get("summary"), "fit": d.get("fit", {}).get("verdict")}
-
-
+    return {"case": case.name, "found": found, "named": named, "lookalike": lookalike, "false": false,
+            "verdicts": verdicts, "outside_verdict_right": ok_verdict, "summary": d.get("summary"),
+            "fit": d.get("fit", {}).get("verdict")}
