@@ -84,3 +84,19 @@ def test_input_gain_is_plausible_from_a_hundredth_to_a_thousand_times_the_config
     plausible = CANDIDATES["input_gain"].plausible
     assert plausible({"gain": 0.01}, rig) and plausible({"gain": 70.0}, rig) and plausible({"gain": 1000.0}, rig)
     assert not plausible({"gain": 0.0}, rig) and not plausible({"gain": -3.0}, rig)
+
+
+def test_the_page_says_which_effects_only_a_combination_pins() -> None:
+    from furuta_rt.diagnose.page import html_page
+
+    combo = {"name": "speed_per_volt", "value": 37.83, "se": 0.004, "unit": "rad/s per V",
+             "members": ["input_gain", "arm_viscous"]}
+    data = {"rig": "r", "effects": [{"name": "input_gain", "params": {"gain": 70.1}},
+                                    {"name": "arm_bias", "params": {"tau": 0.01}}],
+            "evidence": [{"name": "input_gain", "equation": "arm", "t": 17.0, "se": {"gain": 4.0}, "pinned": False,
+                          "pinned_combinations": [combo]},
+                         {"name": "arm_bias", "equation": "arm", "t": 9.0, "se": {"tau": 0.001}, "pinned": True,
+                          "pinned_combinations": []}],
+            "equations": {"arm": {"rows": 1000, "verdict": "partly_explained"}}}
+    page = html_page(data, [], [])
+    assert page.count("not pinned alone") == 1 and "speed_per_volt = 37.83 ± 0.004 rad/s per V" in page

@@ -38,6 +38,16 @@ def _pct(x: object) -> str:
     return f"{100 * x:.1f} %" if isinstance(x, int | float) and not isinstance(x, bool) else "—"
 
 
+def _combined(e: dict) -> str:
+    """The note on an effect the recording does not pin alone: the combinations of it the data pins (engine.Found)."""
+    if e.get("pinned", True):
+        return ""
+    combos = e.get("pinned_combinations") or []
+    pinned = "; ".join(f"{_e(c['name'])} = {_num(c.get('value'), 4)} ± {_num(c.get('se'), 2)} {_e(c.get('unit', ''))}"
+                       for c in combos)
+    return "<br><i>not pinned alone by this recording" + (f"; pinned: {pinned}" if pinned else "") + "</i>"
+
+
 def _params(params: dict[str, Any], se: dict[str, Any] | None = None) -> str:
     se = se or {}
     out = []
@@ -102,8 +112,8 @@ def _equation(name: str, eq: dict[str, Any], data: dict[str, Any]) -> str:
     if found:
         out.append("<p><b>Found:</b></p>" + _table(
             ["effect", "parameters ± standard error", "from", "held-out error reduction", "t"],
-            [[_e(e["name"]), _params(params.get(e["name"], {}), e.get("se")), _e(e.get("source", "")), _pct(e.get("cv_gain")),
-              _num(e.get("t"), 3)] for e in found]))
+            [[_e(e["name"]), _params(params.get(e["name"], {}), e.get("se")) + _combined(e), _e(e.get("source", "")),
+              _pct(e.get("cv_gain")), _num(e.get("t"), 3)] for e in found]))
     else:
         out.append("<p><b>Found:</b> no library effect in this equation.</p>")
     names = {e["name"] for e in found}
