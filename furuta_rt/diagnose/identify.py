@@ -12,7 +12,8 @@ A parameter is *pinned* when its relative standard error is below PINNED_REL_SE 
 Scaling g, J and D together changes only P's share of the
 residual, so when the pendulum's reaction is small the three are collinear and only their ratios are pinned: the
 combinations reported with their own jackknife errors — the arm's acceleration per command unit g·k_u/J_eff, its
-time constant J_eff/D and, for a DC motor, the steady speed per volt g·k_u/D (J_eff: M22 averaged over the rows).
+time constant J_eff/D and the steady speed per command unit g·k_u/D (``speed_per_volt`` for a DC motor, else
+``speed_per_command``, where the damping is positive; J_eff: M22 averaged over the rows).
 """
 
 from __future__ import annotations
@@ -76,9 +77,12 @@ def identification(em: EquationModel, selected: Evaluation) -> dict | None:
         out = {"input_gain": g, "arm_inertia": J0 + dJ, "arm_viscous": fv, "arm_damping": damping,
                "acceleration_per_command": g * k_u / J_eff,
                "time_constant": J_eff / damping if damping > 0 else float("nan")}
+        speed = g * k_u / damping if damping > 0 else float("nan")
         if ctx.model.actuator.kind == "dc_motor":
             out["torque_per_volt"] = g * k_u
-            out["speed_per_volt"] = g * k_u / damping if damping > 0 else float("nan")
+            out["speed_per_volt"] = speed
+        else:  # a torque command: the steady speed per N m commanded (the same ratio of gain and damping)
+            out["speed_per_command"] = speed
         return out
 
     full = values(f.coef)
@@ -105,6 +109,8 @@ def identification(em: EquationModel, selected: Evaluation) -> dict | None:
     combos = {"acceleration_per_command": f"rad/s² per {unit_u}", "time_constant": "s"}
     if "speed_per_volt" in full:
         combos["speed_per_volt"] = "rad/s per V"
+    if "speed_per_command" in full and np.isfinite(full["speed_per_command"]):
+        combos["speed_per_command"] = "rad/s per N m"
     combinations = {n: {"value": full[n], "se": se[n], "unit": unit} for n, unit in combos.items()}
     return {"parameters": params, "combinations": combinations, "inertia_at_rows": m22,
             "method": "arm equation: input gain, arm inertia and damping fitted jointly with the selected effects "
@@ -116,6 +122,7 @@ COMBINATION_MEMBERS: dict[str, tuple[str, str]] = {  # the two parameters (effec
     "acceleration_per_command": ("input_gain", "arm_inertia"),
     "time_constant": ("arm_inertia", "arm_viscous"),
     "speed_per_volt": ("input_gain", "arm_viscous"),
+    "speed_per_command": ("input_gain", "arm_viscous"),
 }
 PINNABLE_PAIRS = (("input_gain", "arm_viscous"),)  # linear arm effects whose ratio is a physical combination (speed per volt)
 
