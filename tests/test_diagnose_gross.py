@@ -33,12 +33,15 @@ def _significant_or_combined(d) -> None:
             assert e.t >= 4.0 or (e.cv_gain >= 0.05 and e.t >= 2.0) or (not e.pinned and e.combinations), e
 
 
-@pytest.mark.parametrize(("gain", "excitation", "seed"), [(50.0, "step", 7), (0.1, "step", 9)])
-def test_a_torque_per_volt_far_off_the_datasheet_is_found_as_the_input_gain(gain: float, excitation: str, seed: int) -> None:
-    """Steps of several levels (both signs) with the torque per volt ×50 or ×0.1 the config's: input_gain comes back
+@pytest.mark.parametrize(("gain", "excitation", "seconds", "seed"),
+                         [(50.0, "step", 20.0, 7), (0.1, "step", 20.0, 9), (1000.0, "single_step", 6.0, 13)])
+def test_a_torque_per_volt_far_off_the_datasheet_is_found_as_the_input_gain(gain: float, excitation: str, seconds: float,
+                                                                           seed: int) -> None:
+    """Steps of several levels (both signs) with the torque per volt ×50 or ×0.1 the config's, or one step with ×1000
+    (a command in the wrong unit): input_gain comes back
     within 10 % (the plausible range used to stop at ×20), with the damping, and the identification reports the same
     values as the effects (one source of truth)."""
-    _, d, _ = _diagnosed(excitation, gain, 20.0, seed)
+    _, d, _ = _diagnosed(excitation, gain, seconds, seed)
     found = {e.name: e for e in d.effects}
     assert set(found) == {"input_gain", "arm_viscous"}, found
     assert found["input_gain"].params["gain"] == pytest.approx(gain, rel=0.1)
