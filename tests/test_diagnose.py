@@ -56,18 +56,28 @@ def test_kernel_is_exact_for_a_held_input() -> None:
 
 
 def test_inverse_dynamics_residual_vanishes_on_true_states(rig) -> None:
-    """With the true states (no quantisation, no noise) eq. 4 through the kernel balances the held command."""
+    """With the true states (no quantisation, no noise) eq. 4 through the kernel balances the held command
+    to about 1e-6 of its size (docs/DIAGNOSE.md, "One kernel for both sides"): measured 1.04–1.11e-6 for
+    seeds 3–5 at σ = 30 ms. What is left is eq. 4's nonlinear terms evaluated on the smoothed states
+    (f(K*x) ≠ K*f(x)), not the kernel's integration (exact to 1e-9 above): it shrinks with the kernel,
+    2.0e-7 at σ = 10 ms."""
     rec = run_closed_loop(rig, 6.0, seed=3)
     x = rec.extra
-    f = GaussianFilter.build(0.03, rec.dt)
-    th, ph = x["true_theta"], x["true_phi"]
-    tp, ta = FurutaPlant(rig.lumped()).inverse_dynamics(
-        f.apply(th), f.apply(x["true_theta_dot"]), f.apply(ph, 1), f.apply(x["true_theta_dot"], 1), f.apply(ph, 2)
-    )
-    held = f.apply_held(rec.u, rig.control.command_delay_ticks * rec.dt)
     inner = slice(200, -200)
-    assert np.std((ta - held)[inner]) < 1e-4 * np.std(held[inner])
-    assert np.std(tp[inner]) < 1e-5
+    plant = FurutaPlant(rig.lumped())
+
+    def residuals(sigma: float) -> tuple[float, float]:
+        f = GaussianFilter.build(sigma, rec.dt)
+        th, ph, thd = x["true_theta"], x["true_phi"], x["true_theta_dot"]
+        tp, ta = plant.inverse_dynamics(f.apply(th), f.apply(thd), f.apply(ph, 1), f.apply(thd, 1), f.apply(ph, 2))
+        held = f.apply_held(rec.u, rig.control.command_delay_ticks * rec.dt)
+        return float(np.std((ta - held)[inner]) / np.std(held[inner])), float(np.std(tp[inner]))
+
+    arm, pendulum = residuals(0.03)
+    assert arm < 1.5e-6
+    assert pendulum < 2e-8  # N m; the pendulum row's torque scale is ε·θ ≈ 1e-3 N m here
+    narrow, _ = residuals(0.01)
+    assert narrow < 0.3 * arm
 
 
 def test_bessel_path_is_inverted(rig) -> None:

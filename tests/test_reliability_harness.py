@@ -193,33 +193,6 @@ def run_host_loop(pieces: list[bytes], *, link_timeout_s: float, rate: int = 500
 
 
 # ------------------------------------------------------------------ MCAP read-back
-def mcap_counts_python_stream(path: str | Path) -> dict[str, Any]:
-    """Messages per topic through mcap's Python StreamReader (tolerates a torn end)."""
-    from mcap.stream_reader import StreamReader
-
-    topics: dict[str, int] = {}
-    channels: dict[int, str] = {}
-    last: dict[str, int] = {}
-    error = None
-    complete = False
-    with open(path, "rb") as fh:
-        try:
-            for rec in StreamReader(fh, skip_magic=False, emit_chunks=False).records:
-                kind = type(rec).__name__
-                if kind == "Channel":
-                    channels[rec.id] = rec.topic
-                elif kind == "Message":
-                    topic = channels[rec.channel_id]
-                    topics[topic] = topics.get(topic, 0) + 1
-                    last[topic] = rec.log_time
-                elif kind == "Footer":
-                    complete = True
-        except Exception as err:  # a torn file ends anywhere: McapError, EOFError, struct errors ...
-            error = f"{type(err).__name__}: {err}"
-    return {"reader": "python-mcap-stream", "complete": complete, "error": error, "topics": topics,
-            "max_log_time": last}
-
-
 NODE_SCRIPT = r"""
 // Count messages per topic with @mcap/core's McapStreamReader (independent of the Python mcap package).
 const fs = require("fs");
@@ -284,24 +257,22 @@ def ensure_node_mcap() -> Path | None:
         return modules
 
 
+INDEPENDENT_READER = "@mcap/core McapStreamReader"
+
+
 def independent_mcap_counts(path: str | Path) -> dict[str, Any]:
-    """Messages per topic by @mcap/core under node; falls back to mcap's Python StreamReader and says so
-    in ``result["fallback"]`` (never returns without having read the file)."""
+    """Messages per topic by @mcap/core under node (JavaScript: shares no code with our reader, which is
+    built on the Python mcap package). Raises if it cannot run: there is no quiet fallback to a reader
+    that is not independent."""
     modules = ensure_node_mcap()
-    if modules is not None:
-        proc = subprocess.run(["node", str(NPM_CACHE / "count_mcap.cjs"), str(path)], capture_output=True, text=True,
-                              timeout=120, env={**os.environ, "NODE_PATH": str(modules)})
-        if proc.returncode == 0 and proc.stdout.strip():
-            out = json.loads(proc.stdout.strip().splitlines()[-1])
-            out["fallback"] = ""
-            return out
-        reason = f"node failed ({proc.returncode}): {proc.stderr.strip()[:200]}"
-    else:
-        reason = "node/npm or @mcap/core unavailable"
-    out = mcap_counts_python_stream(path)
-    out["fallback"] = f"{reason}; used mcap's Python StreamReader instead"
-    print(f"independent MCAP reader fallback: {out['fallback']}", file=sys.stderr)
-    return out
+    if modules is None:
+        raise RuntimeError(f"the independent MCAP reader ({INDEPENDENT_READER}) is unavailable: node/npm or "
+                           f"@mcap/core could not be installed into {NPM_CACHE}")
+    proc = subprocess.run(["node", str(NPM_CACHE / "count_mcap.cjs"), str(path)], capture_output=True, text=True,
+                          timeout=120, env={**os.environ, "NODE_PATH": str(modules)})
+    if proc.returncode != 0 or not proc.stdout.strip():
+        raise RuntimeError(f"{INDEPENDENT_READER} failed on {path} ({proc.returncode}): {proc.stderr.strip()[:300]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
 # ------------------------------------------------------------------ HIL: a recording mock + the real daemon

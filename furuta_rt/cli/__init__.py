@@ -1,5 +1,8 @@
 """`furuta-rt` command line. Each subcommand lives in its own module in this package and exposes
-``register(subparsers)``; modules are discovered automatically (add a file to add a command).
+``register(subparsers)``; ``COMMANDS`` lists them (add a module and its name there to add a command).
+They are listed, not discovered by reading the package directory: a user who may import the modules
+but not list the directory (a clone in a private directory, a dropped-privilege process) would
+otherwise get a CLI without commands.
 
 Errors the user can fix (bad config, missing device, bad file) end as one line on stderr and exit
 code 2 — never a traceback.
@@ -9,10 +12,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import pkgutil
 import sys
 
 from furuta_rt.errors import UserError
+
+COMMANDS = ("analyze", "convert", "design", "diagnose", "repair", "replay", "run")
+"""The subcommand modules of this package, in the order ``--help`` lists them."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -21,11 +26,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Real-time control, logging and physics diagnosis for a Furuta pendulum rig.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-        if info.name.startswith("_"):
-            continue
-        module = importlib.import_module(f"{__name__}.{info.name}")
-        module.register(sub)
+    for name in COMMANDS:
+        importlib.import_module(f"{__name__}.{name}").register(sub)
     return parser
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 from furuta_rt.config import SHIPPED_RIGS, RigConfig, load_rig
 from furuta_rt.errors import UserError
@@ -32,4 +33,7 @@ def parse_gains(text: str | None) -> list[float] | None:
         raise UserError(f"--gains {text!r}: not four numbers separated by commas (e.g. 60,20,10,4)") from None
     if len(gains) != 4:
         raise UserError(f"--gains {text!r}: need exactly four gains l1,l2,l3,l4, got {len(gains)}")
+    bad = [f"l{i + 1} = {g}" for i, g in enumerate(gains) if not math.isfinite(g)]
+    if bad:
+        raise UserError(f"--gains {text!r}: {', '.join(bad)} is not a finite number (e.g. 60,20,10,4)")
     return gains

@@ -11,7 +11,8 @@ from furuta_rt.config import load_rig
 from furuta_rt.errors import UserError
 from furuta_rt.io.mapping import SHIPPED_MAPPINGS, load_mapping
 from furuta_rt.io.mcap_read import is_mcap
-from furuta_rt.io.recordings import read_recording, write_recording
+from furuta_rt.io.output import refuse_existing, replace_when_done
+from furuta_rt.io.recordings import output_format, read_recording, write_recording
 from furuta_rt.replay.plot import plot_recording
 
 
@@ -23,7 +24,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "another rig is read through a column mapping (--mapping; shipped: " + ", ".join(SHIPPED_MAPPINGS) + ").",
     )
     p.add_argument("input", metavar="INPUT", help="a .csv recording or a .mcap log")
-    p.add_argument("-o", "--output", metavar="OUTPUT", required=True, help="OUTPUT.mcap or OUTPUT.csv")
+    p.add_argument("-o", "--output", metavar="OUTPUT", required=True,
+                   help="OUTPUT.mcap or OUTPUT.csv (an existing file only with --force)")
+    p.add_argument("--force", action="store_true", help="replace an existing OUTPUT (once the new one is complete)")
     p.add_argument("--mapping", metavar="NAME|FILE", default=None, help="column mapping for another rig's CSV")
     p.add_argument("--map", metavar="FIELD.KEY=VALUE", action="append", default=[],
                    help="override one mapping key, e.g. u.scale=10 or theta.source=angle (repeatable)")
@@ -39,8 +42,10 @@ def run(args: argparse.Namespace) -> int:
     src, dst = Path(args.input), Path(args.output)
     if src.resolve() == dst.resolve():
         raise UserError(f"output {dst} is the input; give another -o")
-    if is_mcap(src) and dst.suffix.lower() == ".mcap":
+    to_log = output_format(dst) == ".mcap"
+    if is_mcap(src) and to_log:
         raise UserError(f"{src} is already an MCAP log; to rewrite a log left by a killed run use `furuta-rt repair {src}`")
+    refuse_existing(dst, force=args.force, flag="-o")
     mapping = None
     if args.mapping or args.map:
         if is_mcap(src):
@@ -53,10 +58,10 @@ def run(args: argparse.Namespace) -> int:
     rec = read_recording(src, mapping, rig)
     for w in rec.meta.get("warnings", []):  # type: ignore[union-attr]
         Console(stderr=True, soft_wrap=True).print(f"[yellow]warning:[/] {w}", highlight=False)
-    to_log = dst.suffix.lower() == ".mcap"
     if to_log and rig is None:
         rig = load_rig("thesis")
-    write_recording(rec, dst, rig, extra=args.extra)
+    with replace_when_done(dst) as tmp:
+        write_recording(rec, tmp, rig, extra=args.extra)
     unit = "V" if rig is not None and rig.actuator.kind == "dc_motor" else "N m"
     rig_text = f", rig {rig.name}" if to_log and rig else ""
     con.print(f"wrote {dst}: {len(rec)} rows, {rec.duration:.2f} s{rig_text}", highlight=False)

@@ -14,13 +14,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "repair",
         help="rewrite an MCAP log that was not closed (killed run) with a summary",
         description="Copy every complete chunk of LOG (messages untouched), its metadata and attachments into a "
-        "complete MCAP file with indexes and a summary. Without -o the log is rewritten in place and the original "
-        "kept as LOG.bak.",
+        "complete MCAP file with indexes and a summary. Without -o (or with -o LOG) the log is rewritten in place "
+        "and the original kept as LOG.bak. Nothing is replaced or deleted unless the rewrite succeeded.",
     )
     p.add_argument("log", metavar="LOG.mcap")
-    p.add_argument("-o", "--output", metavar="OUT.mcap", default=None, help="write here instead of in place")
+    p.add_argument("-o", "--output", metavar="OUT.mcap", default=None,
+                   help="write here instead of in place (an existing file only with --force)")
     p.add_argument("--no-backup", action="store_true", help="in place: do not keep the original as LOG.bak")
-    p.add_argument("--force", action="store_true", help="rewrite even a log that was closed properly")
+    p.add_argument("--force", action="store_true",
+                   help="rewrite even a log that was closed properly; replace an existing -o file")
     p.set_defaults(func=run)
 
 
@@ -35,6 +37,6 @@ def run(args: argparse.Namespace) -> int:
         con.print(f"dropped {r.damaged_chunks} damaged chunk(s)", highlight=False)
     if r.dropped_bytes:
         con.print(f"dropped the last {r.dropped_bytes} bytes of {r.source} (an incomplete record)", highlight=False)
-    if args.output is None and not args.no_backup:
+    if r.output == r.source and not args.no_backup:
         con.print(f"the original is kept as {r.source}.bak", highlight=False)
     return 0

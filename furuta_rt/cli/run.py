@@ -4,18 +4,22 @@
     furuta-rt run --port /dev/ttyACM0 --log run.mcap   the rig
 
 Exit codes: 0 duration reached or operator stop (SIGINT/SIGTERM: u = 0 sent, log closed, summary
-printed); 1 the safety supervisor tripped (reason printed); 2 user error (one line, no traceback);
-3 the run ended but its log is incomplete (disk full, ...); 130 interrupted during start-up.
+printed) after the pendulum balanced; 1 the safety supervisor tripped (reason printed); 2 user error
+(one line, no traceback); 3 the run ended but its log is incomplete (disk full, ...); 4 the run ended
+without ever balancing (the pendulum never came within the arming window); 130 interrupted during
+start-up.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 from furuta_rt.cli._common import add_config_argument, parse_gains, rig_from_args
 from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
+from furuta_rt.io.output import probe_writable, refuse_existing
 
 COMP_MODES = ("none", "coulomb", "stiction", "lugre")
 MOCK_TIMEOUT_MS = 500.0
@@ -32,14 +36,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="run the balancing loop on the rig (--port) or the simulated pendulum (--mock)",
         description="Fixed-rate control daemon: read SAMPLE → u = L·x + friction compensation → COMMAND, "
         "with a safety supervisor, an MCAP log and a live dashboard. Exit 0: duration reached or stopped "
-        "by the operator (Ctrl-C); 1: tripped; 2: user error; 3: the log is incomplete (disk full).",
+        "by the operator (Ctrl-C) after balancing; 1: tripped; 2: user error; 3: the log is incomplete (disk full); "
+        "4: never balanced.",
     )
     add_config_argument(p)
     src = p.add_mutually_exclusive_group()
     src.add_argument("--port", metavar="DEV", help="serial device of the DAQ, e.g. /dev/ttyACM0")
     src.add_argument("--mock", action="store_true", help="start hil-mock (the simulated pendulum) on a pty and use it")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds of device time (default: until Ctrl-C)")
-    p.add_argument("--log", metavar="FILE.mcap", help="write every tick to this MCAP file (opens in Foxglove)")
+    p.add_argument("--log", metavar="FILE.mcap", help="write every tick to this MCAP file (opens in Foxglove); "
+                   "an existing file only with --force")
+    p.add_argument("--force", action="store_true", help="replace an existing --log file (it is replaced when the "
+                   "device has answered, not before)")
     p.add_argument("--comp", choices=COMP_MODES, help="friction compensation (default: the config's compensation.mode)")
     p.add_argument("--rate", type=int, metavar="HZ", help="loop rate (default: the config's control.rate_hz)")
     p.add_argument("--gains", metavar="L1,L2,L3,L4", help="use these gains instead of the configured design")
@@ -95,6 +103,16 @@ def mock_arguments(args: argparse.Namespace, rig_source: str, rate: int, watchdo
     return out + list(args.mock_arg)
 
 
+def _check_log_argument(path: str, force: bool) -> None:
+    """An MCAP file name, not an existing file unless ``force``, in a place we may write (nothing written)."""
+    suffix = Path(path).suffix.lower()
+    if suffix != ".mcap":
+        raise UserError(f"--log {path}: the log is an MCAP file; give a name ending in .mcap (a CSV of it: "
+                        f"furuta-rt convert LOG.mcap -o {Path(path).with_suffix('.csv').name})")
+    refuse_existing(path, force=force, flag="--log")
+    probe_writable(path, "the log")
+
+
 def run(args: argparse.Namespace) -> int:
     from furuta_rt.runtime.daemon import RunOptions, default_tui, run_daemon
 
@@ -104,6 +122,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--duration {args.duration:g}: must be a positive number of seconds")
     if args.rate is not None and not 1 <= args.rate <= 10_000:
         raise UserError(f"--rate {args.rate}: must be between 1 and 10000 Hz")
+    if args.tui and args.no_tui:
+        raise UserError("--tui and --no-tui contradict each other; give one of them")
+    if args.log is not None:
+        _check_log_argument(args.log, args.force)
     has_mock_opts = args.mock_effect or args.mock_fault or args.mock_arg or args.mock_seed is not None
     if has_mock_opts and not args.mock:
         raise UserError("--mock-effect/--mock-fault/--mock-seed/--mock-arg only apply with --mock")

@@ -35,18 +35,24 @@ def read_recording(path: str | Path, mapping: CsvMapping | str | None = None, ri
     return read_mapped_csv(p, m, rig)
 
 
+def output_format(path: str | Path) -> str:
+    """".mcap" or ".csv", from the output's extension; UserError for anything else."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix not in (".mcap", ".csv"):
+        raise UserError(f"output {p}: unknown format {suffix or '(no extension)'!r}; use .csv or .mcap")
+    return suffix
+
+
 def write_recording(rec: Recording, path: str | Path, rig: RigConfig | None = None, *, extra: bool = False) -> Path:
     """Write ``rec`` as CSV (.csv) or as a log of ``rig`` (.mcap)."""
     p = Path(path)
-    suffix = p.suffix.lower()
-    if suffix == ".mcap":
+    if output_format(p) == ".mcap":
         if rig is None:
             raise UserError(f"writing {p} needs the rig config (--config)")
         return write_recording_mcap(rec, p, rig)
-    if suffix == ".csv":
-        try:
-            write_csv(rec, p, extra=extra)
-        except OSError as err:
-            raise UserError(f"cannot write {p}: {err.strerror}") from None
-        return p
-    raise UserError(f"output {p}: unknown format {suffix or '(no extension)'!r}; use .csv or .mcap")
+    try:
+        write_csv(rec, p, extra=extra)
+    except OSError as err:
+        raise UserError(f"cannot write {p}: {err.strerror}") from None
+    return p

@@ -17,6 +17,7 @@ from mcap.writer import Writer
 
 from furuta_rt.errors import UserError
 from furuta_rt.io.mcap_read import _READ_ERRORS, MCAP_MAGIC, _LogStreamReader
+from furuta_rt.io.output import refuse_existing, replace_when_done
 
 
 @dataclass(frozen=True)
@@ -81,9 +82,22 @@ def is_complete(path: str | Path) -> bool:
     return tail[0] == 0x02 and tail[-len(MCAP_MAGIC) :] == MCAP_MAGIC
 
 
-def repair_log(path: str | Path, output: str | Path | None = None, *, backup: bool = True, force: bool = False) -> RepairReport:
+def _same_file(a: Path, b: Path) -> bool:
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def repair_log(
+    path: str | Path, output: str | Path | None = None, *, backup: bool = True, force: bool = False
+) -> RepairReport:
     """Rewrite ``path`` with a summary, to ``output`` or in place (the original kept as ``<name>.bak``
-    when ``backup``). A complete file is left alone unless ``force``."""
+    when ``backup``; an ``output`` that is ``path`` itself counts as in place). A complete file is left
+    alone unless ``force``; an existing ``output`` is replaced only with ``force``. Nothing is replaced
+    or deleted unless the rewrite succeeded: a log with nothing recoverable leaves every file as it was."""
     src = Path(path)
     if not src.is_file():
         raise UserError(f"log {src} does not exist")
@@ -92,11 +106,27 @@ def repair_log(path: str | Path, output: str | Path | None = None, *, backup: bo
             raise UserError(f"{src} is not an MCAP file (no MCAP magic at the start); nothing to repair")
     if is_complete(src) and not force:
         return RepairReport(src, src, 0, 0, 0, 0.0, 0, True)
+    in_place = output is None or _same_file(src, Path(output))
+    if not in_place:
+        refuse_existing(output, force=force, flag="-o")  # type: ignore[arg-type]
+    dst = src if in_place else Path(output)  # type: ignore[arg-type]
+    with replace_when_done(dst) as tmp:
+        report = _copy_complete_chunks(src, tmp, dst)
+        if report.messages == 0 and not report.was_complete:
+            raise UserError(f"{src}: no complete chunk in this MCAP file (cut before its first chunk was written); "
+                            f"nothing to repair, {src} left as it was")
+        if in_place and backup:
+            os.replace(src, src.with_name(src.name + ".bak"))
+    return report
+
+
+def _copy_complete_chunks(src: Path, tmp: Path, dst: Path) -> RepairReport:
+    """Every complete chunk, metadata and attachment of ``src`` into a complete MCAP file ``tmp`` (the
+    report names ``dst``, where it goes when done)."""
     size = src.stat().st_size
-    dst = Path(output) if output is not None else src.with_name(src.name + ".repairing")
     chunks = damaged = good_end = 0
     complete = in_summary = False
-    with src.open("rb") as fh, dst.open("wb") as out:
+    with src.open("rb") as fh, tmp.open("wb") as out:
         records = _LogStreamReader(fh, emit_chunks=True, record_size_limit=max(size, 1)).records
         try:
             first = next(records)
@@ -132,15 +162,8 @@ def repair_log(path: str | Path, output: str | Path | None = None, *, backup: bo
             else:
                 copier.record(rec)
         writer.finish()
-    if copier.messages == 0 and not complete:
-        dst.unlink(missing_ok=True)
-        raise UserError(f"{src}: no complete chunk in this MCAP file (cut before its first chunk was written); nothing to repair")
-    if output is None:
-        if backup:
-            os.replace(src, src.with_name(src.name + ".bak"))
-        os.replace(dst, src)
-        dst = src
-    return RepairReport(src, dst, copier.messages, chunks, damaged, _span(copier), size - good_end, complete)
+    dropped = 0 if complete else size - good_end  # a closed file ends with its magic, which is no record
+    return RepairReport(src, dst, copier.messages, chunks, damaged, _span(copier), dropped, complete)
 
 
 def _span(c: _Copier) -> float:

@@ -13,8 +13,9 @@ Start-up order matters: the device handshake comes last, right before the first 
 pendulum (real or simulated) starts moving when the device starts streaming.
 
 Exit codes: 0 the duration was reached or the operator stopped the run (SIGINT/SIGTERM), with u = 0
-sent and the log closed; 1 the supervisor tripped (reason printed); 2 user error (one line); 3 the run
-ended but the log it was asked for is incomplete (the logger could not write: disk full, ...).
+sent and the log closed, and the pendulum balanced; 1 the supervisor tripped (reason printed); 2 user
+error (one line); 3 the run ended but the log it was asked for is incomplete (the logger could not
+write: disk full, ...); 4 the run ended without ever balancing (a script must not take it for success).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from firmware_protocol import DEFAULT_WATCHDOG_MS
 from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
 from furuta_rt.io.mcap_log import run_metadata
+from furuta_rt.io.output import probe_writable
 from furuta_rt.runtime.channel import Channel, Flag
 from furuta_rt.runtime.hardware import DeviceInfo, SerialHardware
 from furuta_rt.runtime.logger import LogSetup, logger_process
@@ -45,7 +47,7 @@ from furuta_rt.runtime.summary import format_summary, summary_dict
 
 LOG_QUEUE_BATCHES = 200  # 20 s of ticks at 10 batches/s before the loop starts dropping
 CHILD_START_TIMEOUT_S = 60.0
-EXIT_OK, EXIT_TRIPPED, EXIT_LOG_INCOMPLETE = 0, 1, 3
+EXIT_OK, EXIT_TRIPPED, EXIT_LOG_INCOMPLETE, EXIT_NEVER_BALANCED = 0, 1, 3, 4
 
 
 @dataclass
@@ -74,14 +76,21 @@ def _say(message: str) -> None:
 
 
 def _check_log_path(path: str) -> None:
-    p = Path(path)
-    if p.is_dir():
+    """The log can be written (nothing is created or truncated here: the logger opens the file when the
+    device has answered, so a run that never starts replaces nothing)."""
+    if Path(path).is_dir():
         raise UserError(f"--log {path} is a directory; give a file name such as run.mcap")
+    probe_writable(path, "the log")
+
+
+def _ticks_on_disk(path: str) -> int | None:
+    """Ticks a reader recovers from the log as it is on disk (None if it cannot be read at all)."""
+    from furuta_rt.io.mcap_read import read_log
+
     try:
-        with open(p, "wb"):
-            pass
-    except OSError as err:
-        raise UserError(f"cannot write the log {path}: {err.strerror}") from None
+        return read_log(path, timing=False).n_ticks
+    except Exception:  # an unreadable remnant: the summary says so instead
+        return None
 
 
 def _check_device(info: DeviceInfo, rig: RigConfig, warnings: list[str]) -> None:
@@ -296,17 +305,29 @@ def run_daemon(opts: RunOptions) -> int:
             mock_stats = _stop_mock(mock_proc)
         signal.signal(signal.SIGINT, signal.default_int_handler)
         signal.signal(signal.SIGTERM, old_term)
+    log_ticks = None
+    if not log_ok and opts.log_path and result is not None:  # say what the file holds, not what was sent to it
+        log_ticks = _ticks_on_disk(opts.log_path)
+        summary = format_summary(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path,
+                                 limits=_limits_text(opts, rate), log_ticks=log_ticks, log_incomplete=True)
     print(summary, flush=True)
     if mock_stats.strip():
         print("\n".join("  " + line for line in mock_stats.strip().splitlines()), flush=True)
     if not log_ok:
         _say(f"error: the log {opts.log_path} is incomplete: the logger could not finish it (exit {EXIT_LOG_INCOMPLETE})")
     if opts.summary_json:
-        data = summary_dict(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path, warnings=warnings)
+        data = summary_dict(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path, warnings=warnings,
+                            log_ticks=log_ticks if not log_ok else result.ticks if opts.log_path else None)
         Path(opts.summary_json).write_text(json.dumps(data, indent=1) + "\n")
     if result.end == "trip":
         return EXIT_TRIPPED
-    return EXIT_OK if log_ok else EXIT_LOG_INCOMPLETE
+    if not log_ok:
+        return EXIT_LOG_INCOMPLETE
+    if result.balancing_ticks == 0:
+        _say(f"error: the pendulum never balanced: it never came within the arming window (|θ| < "
+             f"{rig.safety.arm_theta:g} rad); exit {EXIT_NEVER_BALANCED}")
+        return EXIT_NEVER_BALANCED
+    return EXIT_OK
 
 
 def default_tui() -> bool:

@@ -149,6 +149,9 @@ def _user_error_for_open(port: str, err: Exception) -> UserError:
                          "(sudo usermod -aG dialout $USER, then log in again)")
     if code == errno.EBUSY or "lock" in str(err).lower():
         return UserError(f"serial device {port} is busy (another program has it open); close it and retry")
+    if code == errno.ENOTTY or os.strerror(errno.ENOTTY).lower() in str(err).lower():
+        return UserError(f"{port} is not a serial port (it takes no serial settings); give the DAQ's device, e.g. "
+                         "/dev/ttyACM0 (list devices: python -m serial.tools.list_ports), or use --mock")
     return UserError(f"cannot open serial device {port}: {err}")
 
 

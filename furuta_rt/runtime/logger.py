@@ -23,6 +23,7 @@ import signal
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from furuta_rt.config import RigConfig
@@ -108,8 +109,11 @@ class TickLog:
             self.writer.flush()
 
     def close(self) -> None:
-        """Finish the file (a run that never reached the handshake still gets its events)."""
+        """Finish the file (a run that never reached the handshake still gets its events, unless that
+        would replace an existing file: only a run with data replaces one)."""
         if self.writer is None:
+            if Path(self.setup.path).exists():
+                return
             self.open({})
         self.writer.close()  # type: ignore[union-attr]
 

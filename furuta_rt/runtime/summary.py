@@ -21,8 +21,9 @@ def _num(x: float) -> float | None:
 
 
 def summary_dict(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path: str | None,
-                 warnings: list[str]) -> dict[str, Any]:
-    """All figures of the run as one JSON-able dict (``--summary-json``)."""
+                 warnings: list[str], log_ticks: int | None = None) -> dict[str, Any]:
+    """All figures of the run as one JSON-able dict (``--summary-json``; ``log_ticks``: the ticks the log
+    holds, fewer than ``ticks`` when it is incomplete)."""
     def hist(h: Any) -> dict[str, float | None]:
         return {k: _num(v) for k, v in h.summary().items()}
 
@@ -40,7 +41,7 @@ def summary_dict(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path
         "dropped_log_messages": r.dropped_log_messages,
         "std_theta": _num(r.theta.std), "std_phi": _num(r.phi.std), "std_u": _num(r.u.std),
         "mean_u_comp": _num(r.u_comp.mean) if r.u_comp.n else None, "std_u_comp": _num(r.u_comp.std),
-        "log": log_path, "warnings": warnings,
+        "log": log_path, "log_ticks": log_ticks, "warnings": warnings,
         "events": [{"wall_ns": t, "level": lvl, "message": m} for t, lvl, m in r.events],
     }
 
@@ -51,8 +52,10 @@ def _p(h: Any, unit: str = "µs") -> str:
     return f"p50 {h.percentile(0.5):.0f}  p99 {h.percentile(0.99):.0f}  max {h.max:.0f} {unit}"
 
 
-def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path: str | None, limits: str = "") -> str:
-    """The human-readable summary printed at the end of every run (``limits``: the safety limits used)."""
+def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path: str | None, limits: str = "",
+                   log_ticks: int | None = None, log_incomplete: bool = False) -> str:
+    """The human-readable summary printed at the end of every run (``limits``: the safety limits used;
+    ``log_incomplete``: the logger failed and the log holds ``log_ticks`` ticks, None: unreadable)."""
     nominal = 1e6 / rate_hz
     ending = ENDINGS.get(r.end, r.end)
     if r.end == "trip":
@@ -77,5 +80,11 @@ def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_pa
         lines.append("  never balanced: the pendulum was not brought within the arming window (|θ| < arm_theta)")
     if limits:
         lines.append(f"  limits: {limits}")
-    lines.append(f"  log: {log_path} ({r.ticks} ticks)" if log_path else "  log: none (use --log FILE.mcap)")
+    if not log_path:
+        lines.append("  log: none (use --log FILE.mcap)")
+    elif log_incomplete:
+        held = "nothing readable" if log_ticks is None else f"{log_ticks} of the {r.ticks} ticks"
+        lines.append(f"  log: {log_path} INCOMPLETE, holds {held}")
+    else:
+        lines.append(f"  log: {log_path} ({r.ticks} ticks)")
     return "\n".join(lines)
