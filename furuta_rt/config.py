@@ -11,7 +11,7 @@ import math
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from furuta_rt.errors import UserError
 from furuta_rt.model.effects import Effects
@@ -20,51 +20,6 @@ from furuta_rt.tomlfile import read_toml
 
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
-
-# Plausibility of the plant's sizes: what a Furuta pendulum on a table or a lab bench can be. A value
-# beyond them is almost always a unit mistake (cm or mm typed as m, g as kg), which would otherwise arm
-# and trip, or design gains for a machine that does not exist.
-MAX_LENGTH_M = 2.0
-MAX_MASS_KG = 5.0
-MAX_INERTIA_KG_M2 = MAX_MASS_KG * MAX_LENGTH_M**2
-EARTH_G = (9.76, 9.84)  # m/s², equator to pole, sea level to high mountains
-
-
-def _unit_hint(value: float, limit: float, units: tuple[tuple[str, float], ...], si: str) -> str:
-    for name, factor in units:
-        if value / factor <= limit:
-            return f"; in {name}? {value:g} {name} = {value / factor:.4g} {si}"
-    return ""
-
-
-def _at_most(limit: float, si: str, what: str, units: tuple[tuple[str, float], ...]) -> AfterValidator:
-    def check(value: float | None) -> float | None:
-        if value is not None and value > limit:
-            raise ValueError(f"{value:g} {si} is more than any Furuta pendulum's {what} ({limit:g} {si} at most)"
-                             + _unit_hint(value, limit, units, si))
-        return value
-
-    return AfterValidator(check)
-
-
-def _earth_gravity(value: float) -> float:
-    lo, hi = EARTH_G
-    if not lo <= value <= hi:
-        hint = _unit_hint(value, hi, (("cm/s²", 100.0), ("mm/s²", 1000.0)), "m/s²")
-        raise ValueError(f"{value:g} m/s² is not the gravity on Earth ({lo:g}–{hi:g} m/s²){hint}")
-    return value
-
-
-_LENGTH = _at_most(MAX_LENGTH_M, "m", "link length", (("cm", 100.0), ("mm", 1000.0)))
-_MASS = _at_most(MAX_MASS_KG, "kg", "link mass", (("g", 1000.0),))
-_INERTIA = _at_most(MAX_INERTIA_KG_M2, "kg m²", "inertia", (("kg cm²", 1e4), ("g cm²", 1e7)))
-Length = Annotated[float, Field(gt=0), _LENGTH]
-Offset = Annotated[float, Field(ge=0), _LENGTH]  # a centre of mass may sit on the axis
-Mass = Annotated[float, Field(ge=0), _MASS]
-Inertia = Annotated[float, Field(gt=0), _INERTIA]
-InertiaOrZero = Annotated[float, Field(ge=0), _INERTIA]
-Torque = Annotated[float, Field(ge=0), _at_most(MAX_MASS_KG * 9.81 * MAX_LENGTH_M, "N m", "gravity torque", ())]
-
 
 class _Section(BaseModel):
     # NaN and ±inf are valid TOML floats; no key of a rig means them
@@ -79,28 +34,28 @@ class PlantConfig(_Section):
     """
 
     parametrisation: Literal["thesis", "general", "lumped"] = "thesis"
-    g: Annotated[Positive, AfterValidator(_earth_gravity)] = G
+    g: Positive = G
     # thesis
-    l: Length | None = None
-    r: Length | None = None
-    M: Mass | None = None
-    m: Mass | None = None
-    Jp: Inertia | None = None
-    J: Inertia | None = None
+    l: Positive | None = None
+    r: Positive | None = None
+    M: NonNegative | None = None
+    m: NonNegative | None = None
+    Jp: Positive | None = None
+    J: Positive | None = None
     # general
-    m1: Mass | None = None
-    l1: Offset | None = None
-    L1: Length | None = None
-    J1: InertiaOrZero | None = None
-    m2: Annotated[Mass, Field(gt=0)] | None = None
-    l2: Length | None = None
-    L2: Length | None = None
-    J2: InertiaOrZero | None = None
+    m1: NonNegative | None = None
+    l1: NonNegative | None = None
+    L1: Positive | None = None
+    J1: NonNegative | None = None
+    m2: Positive | None = None
+    l2: Positive | None = None
+    L2: Positive | None = None
+    J2: NonNegative | None = None
     # lumped
-    alpha: Inertia | None = None
-    beta: Inertia | None = None
-    gamma: InertiaOrZero | None = None
-    epsilon: Annotated[Torque, Field(gt=0)] | None = None
+    alpha: Positive | None = None
+    beta: Positive | None = None
+    gamma: NonNegative | None = None
+    epsilon: Positive | None = None
 
     _REQUIRED = {
         "thesis": ("l", "r", "M", "m", "Jp", "J"),
@@ -259,6 +214,56 @@ class RigConfig(_Section):
 
 
 SHIPPED_RIGS = ("thesis", "qube_servo2", "macstepien")
+
+# Plausibility of the plant's sizes: what a Furuta pendulum on a table or a lab bench can be. A value
+# beyond them is almost always a unit mistake (cm or mm typed as m, g as kg), which would otherwise arm
+# and trip, or design gains for a machine that does not exist.
+MAX_LENGTH_M = 2.0
+MAX_MASS_KG = 5.0
+MAX_INERTIA_KG_M2 = MAX_MASS_KG * MAX_LENGTH_M**2
+EARTH_G = (9.76, 9.84)  # m/s², equator to pole, sea level to high mountains
+_BOUNDS: tuple[tuple[tuple[str, ...], float, str, str, tuple[tuple[str, float], ...]], ...] = (
+    (("l", "r", "l1", "L1", "l2", "L2"), MAX_LENGTH_M, "m", "link length", (("cm", 100.0), ("mm", 1000.0))),
+    (("M", "m", "m1", "m2"), MAX_MASS_KG, "kg", "link mass", (("g", 1000.0),)),
+    (("Jp", "J", "J1", "J2", "alpha", "beta", "gamma"), MAX_INERTIA_KG_M2, "kg m²", "inertia",
+     (("kg cm²", 1e4), ("g cm²", 1e7))),
+    (("epsilon",), MAX_MASS_KG * G * MAX_LENGTH_M, "N m", "gravity torque m g l", (("N cm", 100.0), ("N mm", 1000.0))),
+)
+
+
+def _unit_hint(value: float, limit: float, units: tuple[tuple[str, float], ...], si: str) -> str:
+    for name, factor in units:
+        if value / factor <= limit:
+            return f"; in {name}? {value:g} {name} = {value / factor:.4g} {si}"
+    return ""
+
+
+def implausible(rig: RigConfig) -> list[str]:
+    """Plant values no Furuta pendulum has (almost always a unit mistake), one message each naming the key,
+    the bound and the likely unit; empty when the plant is plausible."""
+    p = rig.plant
+    out = []
+    for keys, limit, si, what, units in _BOUNDS:
+        for key in keys:
+            value = getattr(p, key)
+            if value is not None and value > limit:
+                out.append(f"key 'plant.{key}': {value:g} {si} is more than any Furuta pendulum's {what} "
+                           f"({limit:g} {si} at most){_unit_hint(value, limit, units, si)}")
+    lo, hi = EARTH_G
+    if not lo <= p.g <= hi:
+        out.append(f"key 'plant.g': {p.g:g} m/s² is not the gravity on Earth ({lo:g}–{hi:g} m/s²)"
+                   + _unit_hint(p.g, hi, (("cm/s²", 100.0), ("mm/s²", 1000.0)), "m/s²"))
+    return out
+
+
+def require_plausible(rig: RigConfig, source: str) -> RigConfig:
+    """``rig``, or a UserError naming the first implausible key (for commands that design a controller or
+    drive the rig from it: run, design, analyze)."""
+    problems = implausible(rig)
+    if problems:
+        more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise UserError(f"{source}: {problems[0]}{more}")
+    return rig
 
 
 def _format_validation_error(source: str, err: ValidationError) -> str:

@@ -22,7 +22,8 @@ import test_reliability_harness as harness
 from test_reliability_harness import FURUTA_RT, ROOT, UNPRIVILEGED
 
 from furuta_rt import cli
-from furuta_rt.config import load_rig
+from furuta_rt.config import SHIPPED_RIGS, implausible, load_rig
+from furuta_rt.io.csv import write_csv
 from furuta_rt.io.mcap_log import write_recording_mcap
 from furuta_rt.io.mcap_read import read_log
 from furuta_rt.recording import Recording
@@ -173,9 +174,20 @@ def test_implausible_input_is_named_in_one_line(tmp_path: Path, case: str) -> No
     _one_line_error(_cli(tmp_path, *argv), *mentions)
 
 
-def test_plausible_shipped_rigs_still_load() -> None:
-    for name in ("thesis", "qube_servo2", "macstepien"):
-        assert load_rig(name).plant.lumped().alpha > 0
+def test_shipped_rigs_are_plausible() -> None:
+    for name in SHIPPED_RIGS:
+        assert implausible(load_rig(name)) == []
+
+
+def test_diagnose_warns_about_an_implausible_rig_and_diagnoses_it_as_given(tmp_path: Path) -> None:
+    """Finding what a config gets wrong is diagnose's job: a unit mistake is named, not refused."""
+    t = np.arange(1500) / 500.0
+    write_csv(Recording(t=t, theta=0.01 * np.sin(3 * t), phi=0.1 * np.sin(t), u=0.1 * np.cos(3 * t)), tmp_path / "r.csv")
+    proc = _cli(tmp_path, "diagnose", "r.csv", "--config", _rig_with(tmp_path, "l", "41.3"), "--no-closed-loop",
+                "--skip-convention-check")
+    assert proc.returncode == 0, proc.stderr
+    warnings = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(warnings) == 1 and "warning" in warnings[0] and "plant.l" in warnings[0] and "in cm?" in warnings[0]
 
 
 # ------------------------------------------------------------------ item 10: scripts/demo resolves paths from the caller's folder

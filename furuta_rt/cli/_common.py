@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from furuta_rt.config import SHIPPED_RIGS, RigConfig, load_rig
+from furuta_rt.config import SHIPPED_RIGS, RigConfig, load_rig, require_plausible
 from furuta_rt.errors import UserError
 
 
@@ -19,7 +19,9 @@ def add_config_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def rig_from_args(args: argparse.Namespace) -> RigConfig:
-    return load_rig(args.config)
+    """The rig of ``--config``; an implausible plant (a unit mistake) is refused: this rig's controller
+    is designed and run from it."""
+    return require_plausible(load_rig(args.config), args.config or "thesis")
 
 
 def parse_gains(text: str | None) -> list[float] | None:

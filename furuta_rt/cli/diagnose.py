@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from rich.console import Console
 
-from furuta_rt.config import SHIPPED_RIGS, RigConfig, load_rig
+from furuta_rt.config import SHIPPED_RIGS, RigConfig, implausible, load_rig
 from furuta_rt.errors import UserError
 from furuta_rt.recording import Recording
 
@@ -126,6 +126,9 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         check_directory(Path(args.report))  # before the diagnosis: a user's files are never overwritten
     rec, rig = load(args.recording, args.config, args.mapping, args.map)
+    for problem in implausible(rig):  # a unit mistake, likely; finding what the config gets wrong is the job here
+        Console(stderr=True, soft_wrap=True).print(f"furuta-rt diagnose: warning: {problem}; diagnosed as given",
+                                                   markup=False, highlight=False)
     if args.theta_filter is not None:
         rig = with_theta_filter(rig, args.theta_filter)
     d = diagnose(rec, rig, Options(closed_loop=not args.no_closed_loop, check_conventions=not args.skip_convention_check))
