@@ -112,6 +112,10 @@ def check_way_out(how: str, after_batches: int = 8) -> tuple[list[str], str]:
             if how == "exception":
                 problems.append("the loop swallowed the exception")
     finally:
+        # the device thread reads what the host sent at its own pace: stopping it at once could drop the STOP
+        end = time.monotonic() + 10.0
+        while not rec.stops and time.monotonic() < end:
+            time.sleep(0.01)
         hw.close()
         dev.stop()
         hil_device.LOCKSTEP_TIMEOUT_S = saved
