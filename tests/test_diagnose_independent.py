@@ -46,3 +46,12 @@ def test_no_saturation_from_peaks_the_arm_follows_to_a_count(quiet_null) -> None
     d = diagnose(quiet_null, load_rig("thesis"), Options(closed_loop=False)).to_json()
     assert "input_saturation" not in [e["name"] for e in d["effects"]]
     assert not (d["peak_windows"] or {}).get("added")
+
+
+def test_the_independent_null_is_consistent() -> None:
+    """20 s of the oracle's null case with its sensor noise: nothing found, both equations consistent. The arm's
+    datasheet parameters are judged together (engine._group_pays): a gain 0.61 + inertia 0.6× pair that only rescaled
+    the pendulum's reaction on the arm (0.9 % of the held-out error, paired t ≈ 1) was reported before."""
+    d = diagnose(ind.simulate(ind.CASES[0], 20.0), load_rig("thesis"), Options(closed_loop=False)).to_json()
+    assert d["effects"] == []
+    assert {eq: v["verdict"] for eq, v in d["equations"].items()} == {"arm": "consistent", "pendulum": "consistent"}

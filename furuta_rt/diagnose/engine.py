@@ -36,7 +36,7 @@ from furuta_rt.diagnose.fitting import Stats, fit, paired_t
 from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, STILL_TICKS, Context
 from furuta_rt.diagnose.locate import Location, describe, locate
 from furuta_rt.diagnose.rest import bias_at_rest as rest_test
-from furuta_rt.diagnose.select import EquationModel, Evaluation, Spec, Thresholds
+from furuta_rt.diagnose.select import JOINT, EquationModel, Evaluation, Spec, Thresholds
 from furuta_rt.diagnose.signals import GaussianFilter, Prepared, prepare
 from furuta_rt.model.effects import EFFECT_TYPES, Effects
 from furuta_rt.recording import Recording
@@ -513,7 +513,18 @@ def significant(em: EquationModel, ev: Evaluation, trace: list[dict] | None = No
                 for n in pair:
                     failing.pop(n, None)
         if not failing:
-            return ev
+            group = [n for n in JOINT if n in ev.spec.effects]
+            if len(group) < 2 or _group_pays(em, ev, group):
+                return ev
+            rest = ev.spec
+            for n in group:
+                rest = rest.without(n)
+            if trace is not None:
+                trace.append({"step": len(ev.spec.effects), "candidate": "+".join(group), "pair": group, "dropped": True,
+                              "accepted": False, "ok": False, "t": 0.0, "value": None,
+                              "params": {n: ev.params[n] for n in group}})
+            ev = refit(em, rest)
+            continue
         # first what is not significant or not physical (lowest t first), then what does not pay (lowest gain first)
         weakest = min(failing, key=lambda n: (failing[n][1], failing[n][3] if failing[n][1] else failing[n][2]))
         if trace is not None:
@@ -522,6 +533,30 @@ def significant(em: EquationModel, ev: Evaluation, trace: list[dict] | None = No
                           "ok": False, "value": em.nonlinear_value(ev.spec, weakest)})
         ev = refit(em, ev.spec.without(weakest))
     return ev
+
+
+def _group_pays(em: EquationModel, ev: Evaluation, group: list[str]) -> bool:
+    """Whether the arm's datasheet parameters in ``group`` (input gain, damping, inertia: select.JOINT) pay together.
+    Each may look significant given the others when they compensate each other (a gain of 0.6 with an inertia of
+    0.6×: the acceleration per command unchanged, only the pendulum's reaction on the arm rescaled), so the group is
+    judged as one step: the model without all of them against the model with them (the inertia re-profiled in each
+    held-out fold, as a single step's is), by the selection's rules — paired t over the blocks ≥ t_min, or a held-out
+    gain ≥ strong_gain with t ≥ t_strong or gained in all blocks but one — and the BIC penalty of as many parameters.
+    On an independent simulator's null recording a gain 0.61 + inertia 0.6× pair had removed 0.9 % of the held-out
+    error at paired t < 1."""
+    rest = ev.spec
+    for n in group:
+        rest = rest.without(n)
+    without = em.evaluate(rest)
+    full = fair_baseline(em, ev, "arm_inertia") if "arm_inertia" in group else ev
+    gain = (without.cv - full.cv) / without.cv if without.cv else 0.0
+    t = paired_t(without.fit.cv_block, full.fit.cv_block)
+    th = em.th
+    better = int(np.sum(np.asarray(full.fit.cv_block) < np.asarray(without.fit.cv_block)))
+    blocks = len(full.fit.cv_block)
+    # a large gain concentrated in a few blocks (a swing-up's) has a small paired t: then nearly every block must gain
+    strong = gain >= th.strong_gain and (t >= th.t_strong or better >= blocks - 1)
+    return bool((t >= th.t_min or strong) and without.cv - full.cv > em.bic_penalty(len(group), full.cv))
 
 
 def completed_pairs(em: EquationModel, ev: Evaluation, trace: list[dict] | None = None) -> Evaluation:
