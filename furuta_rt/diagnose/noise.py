@@ -23,13 +23,10 @@ import numpy as np
 
 from furuta_rt.diagnose.library import ARM, Context
 from furuta_rt.diagnose.signals import GaussianFilter, Prepared, States
+from furuta_rt.model.sensors import quantise as _quantise
 
 DRAWS = 4  # Monte Carlo draws of the sensor noise
 CLEAN_SIGMA = 0.02  # s, kernel of the smoothed ("noise-free") θ channel that is re-measured
-
-
-def _quantise(x: np.ndarray, step: float, phase: float) -> np.ndarray:
-    return step * np.round(x / step + phase) - step * phase
 
 
 def remeasured(prep: Prepared, ctx: Context, rng: np.random.Generator, clean: Prepared) -> Prepared:

@@ -283,7 +283,22 @@ class EquationModel:
             # the whole command path's timing: a latency half a tick off already costs ~5 % of a commanded arm's residual;
             # smaller gains came from other misfits (2 % in a model with a gain standing in for an inertia change)
             return False
-        return CANDIDATES[name].plausible(ev.params[name], self.ctx.rig, self.ctx.arm_travel) and significant
+        return self.inside(ev, name) and significant
+
+    def inside(self, ev: Evaluation, name: str) -> bool:
+        """Physically admissible (Candidate.plausible), and a profiled parameter not at the far end of its grid: an optimum
+        that runs to ×10 or ×0.1 the datasheet's arm inertia, to a deadzone as wide as most commands, to a limit that
+        clips 40 % of them or to the longest delay searched is no estimate — the data asks for something the effect
+        only mimics (a 10× inertia for a 6× torque per volt, a deadzone for a gain below 1)."""
+        if not CANDIDATES[name].plausible(ev.params[name], self.ctx.rig, self.ctx.arm_travel):
+            return False
+        kind = CANDIDATES[name].nonlinear
+        if kind not in FAR_END:
+            return True
+        grid = self.grid(kind)
+        ends = [grid[i] for i in FAR_END[kind]]
+        value = self.nonlinear_value(ev.spec, name)
+        return value is None or not any(np.isclose(value, e, rtol=1e-9, atol=0.0) for e in ends)
 
     def select(self, allowed: set[str] | None = None) -> tuple[Evaluation, Evaluation, list[dict]]:
         """(nominal evaluation, selected evaluation, trace of the steps)."""
@@ -313,6 +328,11 @@ class EquationModel:
                               "value": self.nonlinear_value(ev.spec, name)})
                 if ok and (best is None or gain > best[0]):
                     best = (gain, ev, name)
+            if not current.spec.effects:
+                block = self.joint_first(current, names, trace, best[1] if best is not None else None)
+                if block is not None:
+                    current = block
+                    continue
             if best is None:
                 pair = self.best_pair(current, names, trace)
                 if pair is None:
@@ -410,36 +430,78 @@ class EquationModel:
         return None
 
 
+    def _joint_members(self, current: Evaluation, names: list[str]) -> list[str]:
+        """The JOINT members that may still join ``current`` (none off the commanded arm equation)."""
+        if self.equation != ARM or not self.ctx.prep.commanded:
+            return []
+        return [n for n in JOINT if n in names and self.can_add(current.spec, n)]
+
+    def _joint(self, current: Evaluation, added: list[str]) -> Evaluation:
+        """``current`` with the JOINT members ``added`` fitted together (ΔJ started from its linear least-squares value,
+        ID being linear in J, then profiled)."""
+        spec = current.spec
+        for n in added:
+            spec = spec.with_effect(n)
+        if "arm_inertia" not in added:
+            return self.evaluate(spec)
+        X, _ = self.design(spec)
+        y = self.target(spec)
+        f = fit(Stats.of(y, np.column_stack([X, -self.ctx.arm_dJ]), self.blocks))
+        grid = self.grid("inertia")
+        spec = spec.with_value("inertia", float(np.clip(f.coef[-1], grid[0], grid[-1])))
+        return self.evaluate_with(spec.without("arm_inertia"), "arm_inertia")
+
+    def _joint_row(self, current: Evaluation, ev: Evaluation, added: list[str], gain: float, ok: bool,
+                   first: bool = False) -> dict:
+        return {"step": len(current.spec.effects), "candidate": "+".join(added), "pair": added, "joint": True,
+                "first": first, "cv_gain": gain, "t": min(ev.t_stat.get(n, 0.0) for n in added),
+                "params": {n: ev.params[n] for n in added}, "accepted": ok, "ok": ok}
+
+    def joint_first(self, current: Evaluation, names: list[str], trace: list[dict],
+                    best: Evaluation | None) -> Evaluation | None:
+        """The datasheet's arm parameters (JOINT) calibrated together before any other effect, when that explains far
+        more than the best single effect: its held-out error at most (1 − JOINT_FIRST) of the best single's, beyond the
+        BIC penalty of the extra parameters, every member admissible. A torque per volt and an inertia both off leave
+        a residual that one effect alone can only mimic — an inertia ×10 for a gain ×3, a wide deadzone for a gain
+        below 1 (on a command with dither or of constant amplitude a deadzone is a smooth gain reduction) — and the
+        greedy steps built on that stand-in do not come back from it. The backward pass then drops the members that do
+        not pay given the others."""
+        added = self._joint_members(current, names)
+        if len(added) < len(JOINT):
+            return None
+        ref = best if best is not None else current
+        without_j = [n for n in added if n != "arm_inertia"]
+        for members in (added, [*added, *OFFSET], without_j, [*without_j, *OFFSET]):  # the fewest parameters first
+            members = [n for n in members if n in names and self.can_add(current.spec, n)]
+            ev = self._joint(current, members)
+            k = max(1, ev.fit.coef.size + ("arm_inertia" in members) - ref.fit.coef.size - (ref.spec.d_inertia != 0.0))
+            gain = (current.cv - ev.cv) / current.cv if current.cv else 0.0
+            ok = (ev.cv <= (1.0 - JOINT_FIRST) * ref.cv and ref.cv - ev.cv > self.bic_penalty(k, ev.cv)
+                  and gain >= 2 * self.th.min_gain and all(self.inside(ev, n) for n in members))
+            trace.append(self._joint_row(current, ev, members, gain, ok, first=True))
+            if ok:
+                return ev
+        return None
+
     def joint_step(self, current: Evaluation, names: list[str], trace: list[dict]) -> Evaluation | None:
         """The arm's disputed nominal parameters — input gain, damping (arm_viscous), inertia — calibrated together on
         top of the selected effects (greedy steps can settle on one that stands in for the others, e.g. a 10× inertia
         for a 6× torque per volt): kept when the held-out error drops by ≥ 2·min_gain; the backward pass then drops
         the members that do not pay given the others."""
-        added = [n for n in JOINT if n in names and self.can_add(current.spec, n)]
-        if self.equation != ARM or not added or not self.ctx.prep.commanded:
+        added = self._joint_members(current, names)
+        if not added:
             return None
-        spec = current.spec
-        for n in added:
-            spec = spec.with_effect(n)
-        if "arm_inertia" in added:  # started from the linear least-squares ΔJ (ID is linear in J), then profiled
-            X, _ = self.design(spec)
-            y = self.target(spec)
-            f = fit(Stats.of(y, np.column_stack([X, -self.ctx.arm_dJ]), self.blocks))
-            grid = self.grid("inertia")
-            spec = spec.with_value("inertia", float(np.clip(f.coef[-1], grid[0], grid[-1])))
-            ev = self.evaluate_with(spec.without("arm_inertia"), "arm_inertia")
-        else:
-            ev = self.evaluate(spec)
+        ev = self._joint(current, added)
         gain = (current.cv - ev.cv) / current.cv if current.cv else 0.0
-        ok = gain >= 2 * self.th.min_gain and all(
-            CANDIDATES[n].plausible(ev.params[n], self.ctx.rig, self.ctx.arm_travel) for n in added
-        )
-        trace.append({"step": len(current.spec.effects), "candidate": "+".join(added), "pair": added, "joint": True,
-                      "cv_gain": gain, "t": min(ev.t_stat.get(n, 0.0) for n in added),
-                      "params": {n: ev.params[n] for n in added}, "accepted": ok, "ok": ok})
+        ok = gain >= 2 * self.th.min_gain and all(self.inside(ev, n) for n in added)
+        trace.append(self._joint_row(current, ev, added, gain, ok))
         return ev if ok else None
 
 
+FAR_END = {"inertia": (0, -1), "deadzone": (-1,), "limit": (0,), "delay": (-1,)}  # grid ends that are no estimate
 RIVAL_T, RIVAL_GAIN = 3.0, 0.01  # as engine.Options.ambiguity_t / ambiguity_gain
 JOINT = ("input_gain", "arm_viscous", "arm_inertia")  # the arm parameters a datasheet most often gets wrong
 PAIRS_REFINED = 3  # the best-screened pairs fitted in full (nonlinear parameters re-profiled)
+OFFSET = ("arm_bias",)  # tried with JOINT when that alone does not go first: a constant torque (a DAC/amplifier offset, a
+# cable's pull) is part of a motor's linear calibration; left out, a loop that holds it makes it read as a gain
+JOINT_FIRST = 0.5  # the share of the best single effect's held-out error the joint calibration must remove to go first

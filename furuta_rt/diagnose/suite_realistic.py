@@ -29,6 +29,7 @@ from furuta_rt.config import RigConfig
 from furuta_rt.control.controller import design_gains
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
+from furuta_rt.model.sensors import quantise
 from furuta_rt.recording import Recording
 from furuta_rt.sim.simulator import Simulator
 
@@ -38,11 +39,6 @@ THETA_QUANTUM = {"qube_servo2": 2 * math.pi / 2048, "macstepien": 2 * math.pi / 
 THETA_NOISE = {"qube_servo2": 0.0, "macstepien": 5e-5}
 SUBSTEP_HZ = 5000.0
 PUMP_ACCEL = 150.0  # rad/s², the swing-up's arm acceleration far from upright
-
-
-def quantise(x: np.ndarray | float, q: float) -> np.ndarray:
-    """An encoder's reading of ``x``: the nearest multiple of its count ``q``."""
-    return np.floor(np.asarray(x, float) / q + 0.5) * q
 
 
 def design_rig(nominal: RigConfig, effects: Effects) -> RigConfig:

@@ -18,6 +18,17 @@ import numpy as np
 BESSEL2_CUTOFF_FACTOR = 1.3617
 
 
+def count_of(x: np.ndarray | float, step: float, phase: float = 0.0) -> np.ndarray:
+    """The count a quantiser of ``step`` units per count reads for ``x``: the nearest level (ties up), its grid shifted
+    by ``phase`` counts (an encoder's or an ADC's unknown sub-count phase)."""
+    return np.floor(np.asarray(x, dtype=float) / step + phase + 0.5)
+
+
+def quantise(x: np.ndarray | float, step: float, phase: float = 0.0) -> np.ndarray:
+    """The quantiser's reading of ``x`` in ``x``'s units: its count (``count_of``) times ``step``, on the shifted grid."""
+    return step * (count_of(x, step, phase) - phase)
+
+
 @dataclass(slots=True)
 class Measurement:
     """One tick's measurement in SI: θ_f and θ̇_f from the analog path, φ from the encoder."""
@@ -103,7 +114,7 @@ class Calibration:
 
     def quantize_adc(self, value: float, scale: float) -> tuple[int, bool]:
         """(count, overrange) of an ADC reading ``value`` with ``scale`` units per count."""
-        c = round(value / scale)
+        c = int(count_of(value, scale))
         if c > self.adc_max:
             return self.adc_max, True
         if c < self.adc_min:
@@ -114,4 +125,4 @@ class Calibration:
         """(θ, θ̇, φ counts, overrange) as the DAQ would read them."""
         t, o1 = self.quantize_adc(theta_f, self.theta_rad_per_count)
         td, o2 = self.quantize_adc(theta_dot_f, self.theta_dot_rad_s_per_count)
-        return t + self.theta_offset_counts, td, math.floor(phi / self.phi_rad_per_count + 0.5), o1 or o2
+        return t + self.theta_offset_counts, td, int(count_of(phi, self.phi_rad_per_count)), o1 or o2
