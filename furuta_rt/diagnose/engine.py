@@ -420,6 +420,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
             )
     found = [f for eq in res for f in _found(ems[eq], res[eq], notes)]
     stick = _stick_windows(ctx, found, ems, res, opts, lugre=False) if opts.stick_windows else None
+    found = _retimed(stick, found, ems, res)
     if stick is not None and {"arm_stiction", "arm_lugre"} & set(stick.added):
         # with a breakaway torque above the sliding level the arm may also stick briefly at reversals, where its
         # friction is the held torque, not ±Fc: the arm regression is redone without any short stay at one count
@@ -433,6 +434,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
         else:  # the regression's effects as they were (a delay the windows re-timed among them)
             found = [f for eq in res for f in _found(ems[eq], res[eq], [])]
         first, stick = stick, _stick_windows(ctx, found, ems, res, opts, only=set(stick.added))
+        found = _retimed(stick, found, ems, res)
         if stick is not None:  # what the first reading compared stays on record
             stick.tried = [{**t, "pass": 1} for t in first.tried] + [{**t, "pass": 2} for t in stick.tried]
             stick.lookalikes += [a for a in first.lookalikes if a["effects"][1] not in stick.added]
@@ -685,6 +687,19 @@ def _stick_windows(ctx: Context, found: list[Found], ems: dict[str, EquationMode
             f = stick.fits[name]
             found.append(Found(name, ARM, params, {f.param: f.se}, f.t, f.gain, "stick windows"))
     return stick
+
+
+def _retimed(stick: stickslip.WindowStage | None, found: list[Found], ems: dict[str, EquationModel],
+             res: dict[str, EquationResult]) -> list[Found]:
+    """With the regression's input_delay re-timed on the stick windows, the arm model refitted at that delay
+    (latency.retimed) and its other effects reported from the refit; ``found`` as it was otherwise."""
+    if stick is None or "input_delay" not in stick.replaces:
+        return found
+    r = res[ARM]
+    res[ARM] = EquationResult(ARM, r.rows, r.nominal, latency.retimed(ems[ARM], r.selected, stick.added["input_delay"]["delay"]),
+                              r.trace, r.location)
+    refit_arm = {f.name: f for f in _found(ems[ARM], res[ARM], []) if f.name != "input_delay"}
+    return [refit_arm.get(f.name, f) if f.equation == ARM and f.source == "inverse dynamics" else f for f in found]
 
 
 def _provisional_coulomb(em: EquationModel, r: EquationResult, opts: Options) -> float | None:

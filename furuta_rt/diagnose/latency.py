@@ -110,14 +110,7 @@ def settle(em: EquationModel, selected: Evaluation, trace: list[dict] | None = N
     if not ok:
         if not any(n in selected.spec.effects for n in LATENCY_EFFECTS):
             return selected  # the config's latency stands, and so does the selected model
-        spec = spec.with_value("delay", null_delay)
-        if "arm_inertia" in spec.effects:  # ΔJ given the config's latency
-            spec = em.evaluate_with(spec.without("arm_inertia"), "arm_inertia").spec
-        out = em.evaluate(spec)
-        kept = [k for k in out.spec.effects if CANDIDATES[k].nonlinear]  # their t and se come from their profiles
-        out.t_stat.update({k: selected.t_stat[k] for k in kept if k in selected.t_stat})
-        out.se.update({k: selected.se[k] for k in kept if k in selected.se})
-        return out
+        return _refit_at(em, spec, null_delay, selected)
     spec = spec.with_effect(name).with_value("delay", value)
     if joint_j:  # ΔJ in the selection's units (acceleration-weighted profile) at the lag found
         spec = em.evaluate_with(spec.without("arm_inertia"), "arm_inertia").spec
@@ -128,3 +121,26 @@ def settle(em: EquationModel, selected: Evaluation, trace: list[dict] | None = N
     out.t_stat.update({k: selected.t_stat[k] for k in kept if k in selected.t_stat})
     out.se.update({k: selected.se[k] for k in kept if k in selected.se})
     return out
+
+
+def _refit_at(em: EquationModel, spec: Spec, value: float, selected: Evaluation) -> Evaluation:
+    """``spec`` with the command path's delay at ``value`` (on top of the config's lag), its linear parameters refitted
+    and ΔJ re-profiled there (lag and inertia trade phase); the nonlinear parameters keep ``selected``'s t and se (from
+    their profiles)."""
+    spec = spec.with_value("delay", value)
+    if "arm_inertia" in spec.effects:
+        spec = em.evaluate_with(spec.without("arm_inertia"), "arm_inertia").spec
+    out = em.evaluate(spec)
+    kept = [k for k in out.spec.effects if CANDIDATES[k].nonlinear]
+    out.t_stat.update({k: selected.t_stat[k] for k in kept if k in selected.t_stat})
+    out.se.update({k: selected.se[k] for k in kept if k in selected.se})
+    return out
+
+
+def retimed(em: EquationModel, selected: Evaluation, delay: float) -> Evaluation:
+    """The selected arm model at the ``input_delay`` another stage timed better (the stick windows: the breakaways time
+    the actuator more directly than sliding rows that hold brief sticks, where the friction is the held torque, not
+    ±Fc): the gain, damping and inertia reported beside that delay are fitted at it, not at the rows' own value."""
+    if "input_delay" not in selected.spec.effects:
+        return selected
+    return _refit_at(em, selected.spec, delay, selected)
