@@ -46,3 +46,23 @@ def test_single_step_from_rest_is_a_gain_not_a_bias(tmp_path) -> None:
     assert told and told[0]["reported"] == "input_gain" and told[0]["rest"]["turn_rad"] > 1.0, told
     s = suite.score_realistic(case, out, 0.0)
     assert s.detected["speed_per_volt"], s.errors
+
+
+def test_a_bias_the_config_already_has_is_no_departure() -> None:
+    """The rig's own arm_bias is part of the nominal model (Context.arm_known_friction): a recording with exactly that
+    constant torque has nothing left to report; with twice it, the departure is the second half (the reported value
+    is the total, as for every effect)."""
+    from furuta_rt.model.effects import Effects
+    from furuta_rt.sim.closed_loop import run_closed_loop
+
+    rig = load_rig("thesis")
+    configured = rig.model_copy(update={"effects": Effects.model_validate({"arm_bias": {"tau": 0.05}})})
+    ref = suite.reference_signal("sine", 6000, 500.0, 4)
+    for true, expect in ((0.05, None), (0.10, 0.10)):
+        rec = run_closed_loop(rig, 12.0, effects=Effects.model_validate({"arm_bias": {"tau": true}}), seed=4, reference=ref)
+        d = diagnose(rec, configured, Options(closed_loop=False)).to_json()
+        found = {e["name"]: e["params"] for e in d["effects"]}
+        if expect is None:
+            assert "arm_bias" not in found, found
+        else:
+            assert abs(found["arm_bias"]["tau"] - expect) < 0.1 * expect, found

@@ -153,7 +153,7 @@ class Context:
 
     @cached_property
     def arm_known_friction(self) -> np.ndarray:
-        """K * (the torque of the rig's own arm friction and spring), from the shared laws: the sliding level for
+        """K * (the torque of the rig's own arm friction, spring and constant torque), from the shared laws: the sliding level for
         Coulomb/stiction (the regression's rows are sliding), LuGre's bristle state integrated along the measured φ̇."""
         a, f = self.arm, self.fine
         out = np.zeros(self.prep.n)
@@ -170,6 +170,8 @@ class Context:
             out += a.product(torque)
         if self.model.spring_k:
             out += -self.model.spring_k * (a.phi - self.model.spring_phi0)
+        if self.model.arm_bias:  # the rig's own constant torque (the kernel integrates to one)
+            out += self.model.arm_bias
         return out
 
     def lugre_params(self, params: dict[str, dict[str, float]], vs: float) -> dict[str, float]:
