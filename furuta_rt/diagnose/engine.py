@@ -469,7 +469,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     prediction: dict = {}
     fit_summary = _prediction_metric(ctx, gated, found, prediction)
     closed = _closed_loop(rec, rig, found, opts, notes) if opts.closed_loop else None
-    verdicts = verdict.assess(ctx, ems, res, opts.seed, found)
+    verdicts = verdict.assess(ctx, ems, res, opts.seed, found, gated.not_predictive)
     ident = identify.identification(ems[ARM], res[ARM].selected)
     for f in found:
         if f.source == "inverse dynamics":

@@ -15,6 +15,17 @@ paired t ≥ T_HARM and by ≥ MIN_RISE relative, or diverges in at least MIN_EX
 of harm; no evidence keeps it (a small real effect such as a pendulum damping of 1e-4 N m s may change a 0.3 s
 prediction by < 1 %). The worst one goes first, then the rest are judged again. When what is left still predicts
 significantly worse than the nominal model, or diverges more, and removing all of it does better, all of it is moved.
+
+Before that, the band test (``band_check``): every library effect enters eq. 4 through the same kernel on both sides,
+so its fitted value does not depend on the kernel's width; an inverse-dynamics effect whose value, refitted with the
+same set of effects in a band BAND_FACTOR times narrower (a kernel BAND_FACTOR times wider), moves by more than
+BAND_SHARE of its size (its departure from the nominal model, or its value where that is smaller: a gain of 0.13
+that becomes 0.24 has moved by a factor 2) and by more than BAND_Z combined standard errors is not that
+effect — it stands in for dynamics outside eq. 4 (a compliance, a mode) whose effect on the residual depends on
+frequency. It is moved out with that reason, the rest refitted and tested again. In an equation so shown to hold
+dynamics outside eq. 4, the remaining inverse-dynamics effects must earn their place: each stays only if the model
+with it predicts the held-out windows better than without it (paired t ≥ verify.T_DIFFERENT); an effect that other
+dynamics can mimic (an input saturation clipping the fast peaks a compliance filters) would otherwise stay.
 """
 
 from __future__ import annotations
@@ -27,6 +38,7 @@ import numpy as np
 from furuta_rt.config import RigConfig
 from furuta_rt.diagnose import verify
 from furuta_rt.diagnose.fitting import paired_t
+from furuta_rt.diagnose.library import CANDIDATES, Context, nominal_latency
 from furuta_rt.diagnose.select import EquationModel, Evaluation, Spec
 from furuta_rt.diagnose.signals import MAX_SIGMA
 from furuta_rt.diagnose.stickslip import WindowStage
@@ -34,7 +46,6 @@ from furuta_rt.model.effects import Effects
 
 if TYPE_CHECKING:
     from furuta_rt.diagnose.engine import EquationResult, Found, Options
-    from furuta_rt.diagnose.library import Context
 
 N_FOLDS = 4
 T_HARM = 3.0  # paired t over windows: the model without the effect predicts better
@@ -42,6 +53,9 @@ MIN_RISE = 0.01  # ... and the effect raises the prediction error by at least th
 MIN_EXTRA_DIVERGED = 2  # or the effect makes at least this many more windows diverge
 ID = "inverse dynamics"
 EXEMPT = ("stick windows", "peak windows", "free decay")  # sources judged on their own held-out windows
+BAND_FACTOR = 2.0  # the band test's kernel is this many times wider than the equation's
+BAND_SHARE = 0.5  # an effect's value may move by less than this share of its departure from the nominal model ...
+BAND_Z = 4.0  # ... or by less than this many combined standard errors
 
 
 @dataclass
@@ -194,6 +208,64 @@ def _reason(f: Found, w: verify.Prediction, wo: verify.Prediction, t: float) -> 
     return text
 
 
+def _departure_origin(ctx: Context, name: str, param: str) -> float:
+    """The value of an effect's main parameter in the nominal model (its departure is measured from it)."""
+    match name:
+        case "arm_inertia":
+            return ctx.base_inertia
+        case "input_gain":
+            return ctx.known_gain
+        case "command_latency":
+            return nominal_latency(ctx.rig)
+    return ctx.known_value(name, param)
+
+
+def band_context(ctx: Context, factor: float = BAND_FACTOR) -> Context:
+    """The recording's Context with each equation's kernel ``factor`` times wider (the fine kernel kept)."""
+    def outer(eq: str) -> float:
+        s = ctx.states(eq)
+        return (s.outer or s.filt).sigma * factor
+    return Context.build(ctx.prep, ctx.rig, outer("arm"), outer("pendulum"), ctx.fine.filt.sigma)
+
+
+def band_check(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResult], names: list[tuple[str, str]],
+               opts: Options, wide: Context | None = None) -> dict[str, dict]:
+    """Per inverse-dynamics effect (``names``: (equation, effect)) whose value depends on the band (module
+    docstring): its value in both bands, their standard errors and the kernel widths."""
+    from furuta_rt.diagnose.engine import refit
+
+    wide = wide or band_context(ctx)
+    out: dict[str, dict] = {}
+    for eq in dict.fromkeys(eq for eq, _ in names):
+        ev = res[eq].selected
+        em = EquationModel(wide, eq, opts.thresholds, row_filter=ems[eq].row_mask)
+        if em.n_rows < 20 * opts.thresholds.n_blocks or not ev.spec.effects:
+            continue
+        other = refit(em, ev.spec)
+        for e, name in names:
+            if e != eq or name not in ev.params or name not in other.params:
+                continue
+            param = CANDIDATES[name].main
+            if param not in ev.params[name] or param not in other.params[name]:
+                continue
+            v1, v2 = float(ev.params[name][param]), float(other.params[name][param])
+            se1 = float(ev.se.get(name, {}).get(param, 0.0) or 0.0)
+            se2 = float(other.se.get(name, {}).get(param, 0.0) or 0.0)
+            size = min(abs(v1 - _departure_origin(ctx, name, param)), abs(v1))  # a gain of 0.1 moved to 0.2 moved
+            moved = abs(v2 - v1)
+            if moved > BAND_SHARE * size and moved > BAND_Z * float(np.hypot(se1, se2)):
+                out[name] = {"equation": eq, "param": param, "value": v1, "value_wide": v2, "se": se1, "se_wide": se2,
+                             "sigma": ctx.states(eq).filt.sigma, "sigma_wide": wide.states(eq).filt.sigma}
+    return out
+
+
+def _band_reason(b: dict) -> str:
+    return (f"its {b['param']} depends on the frequency band: {b['value']:.4g} ± {b['se']:.2g} with the "
+            f"{1000 * b['sigma']:.0f} ms kernel, {b['value_wide']:.4g} ± {b['se_wide']:.2g} with the "
+            f"{1000 * b['sigma_wide']:.0f} ms one (a library effect's value does not; it stands in for dynamics "
+            "outside eq. 4, such as a compliance or a mode)")
+
+
 def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResult], found: list[Found],
         opts: Options, notes: list[str], stick: WindowStage | None = None, peak: WindowStage | None = None) -> Gated:
     """The prediction gate; ``res`` is updated in place (each equation refitted without the effects moved out)."""
@@ -206,15 +278,10 @@ def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResu
     gate = Gate(ctx, ems, opts, plan, stages, notes)
     specs = {eq: r.selected.spec for eq, r in res.items()}
     gate.specs = specs
-    nominal, _ = gate.predict([], specs)
-    if not plan.starts:
-        notes.append("the recording has no window to predict; the prediction gate and metric are skipped")
-        return Gated(found, [], plan, nominal, nominal, [], opts.substep_hz)
     found = list(found)
-    current, params = gate.predict(found, specs) if found else (nominal, [])
     moved: list[dict] = []
 
-    def drop(gone: list[Found], reason: dict[str, str], numbers: dict[str, dict]) -> None:
+    def drop(gone: list[Found], reason: dict[str, str], numbers: dict[str, dict], key: str = "prediction") -> None:
         nonlocal found
         for eq in {f.equation for f in gone if f.source == ID}:
             spec = specs[eq]
@@ -230,7 +297,37 @@ def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResu
             found = [fresh.get(f.name, f) if f.source == ID and f.equation == eq else f for f in found]
         found = [f for f in found if f not in gone]
         moved.extend({"name": f.name, "equation": f.equation, "params": f.params, "reason": reason[f.name],
-                      "prediction": numbers[f.name]} for f in gone)
+                      key: numbers[f.name]} for f in gone)
+
+    wide = None
+    for _ in range(3):  # the band test: effects whose value depends on the band go, the rest are tested again
+        ids = [(f.equation, f.name) for f in found if f.source == ID]
+        if not ids:
+            break
+        wide = wide or band_context(ctx)
+        bad = band_check(ctx, ems, res, ids, opts, wide)
+        if not bad:
+            break
+        gone = [f for f in found if f.source == ID and f.name in bad]
+        drop(gone, {n: _band_reason(b) for n, b in bad.items()}, bad, key="band")
+        notes.append("moved out (their value depends on the frequency band): " + ", ".join(f.name for f in gone))
+    nominal, _ = gate.predict([], specs)
+    if not plan.starts:
+        notes.append("the recording has no window to predict; the prediction gate and metric are skipped")
+        return Gated(found, moved, plan, nominal, nominal, [], opts.substep_hz)
+    current, params = gate.predict(found, specs) if found else (nominal, [])
+    for eq in dict.fromkeys(m["equation"] for m in moved):  # an equation shown to hold dynamics outside eq. 4
+        for f in [f for f in found if f.equation == eq and f.source == ID]:
+            rest = [g for g in found if g is not f]
+            without, _ = gate.predict(rest, {**specs, eq: specs[eq].without(f.name)})
+            t = paired_t(without.per_window, current.per_window) if current.windows > 1 else 0.0
+            if t < verify.T_DIFFERENT:
+                why = (f"the {eq} equation's fitted dynamics depend on the frequency band (dynamics outside eq. 4), and "
+                       f"this effect does not improve the held-out prediction ({without.nrmse:.4f} without it, "
+                       f"{current.nrmse:.4f} with it, paired t = {t:.1f} < {verify.T_DIFFERENT:g}): it may stand in "
+                       "for those dynamics too")
+                drop([f], {f.name: why}, {f.name: _numbers(current, without, -t)})
+                current, params = gate.predict(found, specs) if found else (nominal, [])
 
     while True:  # the most harmful effect first, then the rest again
         worst = None
