@@ -24,7 +24,9 @@ omnibus size test can.
 For a remainder, where it sits (times, regions, the signals it follows, its frequency band) and what outside the
 library could produce it: the remaining residuals of both equations are regressed, jointly, on the sensitivity of
 FurutaPlant.inverse_dynamics to each plant parameter of the rig config, to a θ sensor scale and to the sign of
-each angle (possible causes for the person to check in the rig config; never effects); the remainder's spectrum
+each angle (possible causes for the person to check in the rig config; never effects), first among them "an
+unmodelled compliance or mode" when the gate's band test found effects of the equation whose fitted values depend on
+the frequency band (``mode_cause``; furuta_rt.diagnose.gate.band_check); the remainder's spectrum
 against the data's (``signature``) says in which band it sits (a narrow peak the data does not have points to an
 unmodelled compliance or mode).
 """
