@@ -259,6 +259,13 @@ def band_check(ctx: Context, ems: dict[str, EquationModel], res: dict[str, Equat
     return out
 
 
+def _above_floor(ctx: Context, em: EquationModel, r: EquationResult, opts: Options) -> bool:
+    from furuta_rt.diagnose.verdict import above_floor
+
+    ev = r.selected
+    return above_floor(ctx, em, em.residual(ev.spec, ev.fit.coef), opts.seed)
+
+
 def _band_reason(b: dict) -> str:
     return (f"its {b['param']} depends on the frequency band: {b['value']:.4g} ± {b['se']:.2g} with the "
             f"{1000 * b['sigma']:.0f} ms kernel, {b['value_wide']:.4g} ± {b['se_wide']:.2g} with the "
@@ -316,16 +323,22 @@ def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResu
         notes.append("the recording has no window to predict; the prediction gate and metric are skipped")
         return Gated(found, moved, plan, nominal, nominal, [], opts.substep_hz)
     current, params = gate.predict(found, specs) if found else (nominal, [])
-    for eq in dict.fromkeys(m["equation"] for m in moved):  # an equation shown to hold dynamics outside eq. 4
+    # an equation shown to hold dynamics outside eq. 4 (the band test), or whose residual stays above the noise floor
+    # with its effects (verdict.above_floor): its effects may stand in for what is missing, and must predict better
+    suspect = [eq for eq in specs if any(m["equation"] == eq for m in moved) or (
+        any(f.equation == eq and f.source == ID for f in found) and _above_floor(ctx, ems[eq], res[eq], opts))]
+    for eq in suspect:
         for f in [f for f in found if f.equation == eq and f.source == ID]:
             rest = [g for g in found if g is not f]
             without, _ = gate.predict(rest, {**specs, eq: specs[eq].without(f.name)})
             t = paired_t(without.per_window, current.per_window) if current.windows > 1 else 0.0
             if t < verify.T_DIFFERENT:
-                why = (f"the {eq} equation's fitted dynamics depend on the frequency band (dynamics outside eq. 4), and "
-                       f"this effect does not improve the held-out prediction ({without.nrmse:.4f} without it, "
-                       f"{current.nrmse:.4f} with it, paired t = {t:.1f} < {verify.T_DIFFERENT:g}): it may stand in "
-                       "for those dynamics too")
+                what = ("the {eq} equation's fitted dynamics depend on the frequency band (dynamics outside eq. 4)"
+                        if any(m["equation"] == eq for m in moved) else
+                        "the {eq} equation's residual stays above its noise floor with its effects (physics is missing)")
+                why = (f"{what.format(eq=eq)}, and this effect does not improve the held-out prediction "
+                       f"({without.nrmse:.4f} without it, {current.nrmse:.4f} with it, paired t = {t:.1f} < "
+                       f"{verify.T_DIFFERENT:g}): it may stand in for what is missing")
                 drop([f], {f.name: why}, {f.name: _numbers(current, without, -t)})
                 current, params = gate.predict(found, specs) if found else (nominal, [])
 

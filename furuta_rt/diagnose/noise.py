@@ -85,7 +85,15 @@ def _residual(ctx: Context, equation: str, s: States) -> np.ndarray:
 
 
 def draws(ctx: Context, equation: str, n_draws: int = DRAWS, seed: int = 0, clean_sigma: float = CLEAN_SIGMA) -> np.ndarray:
-    """(n_draws, n) draws of the sensor part of ``equation``'s residual on the recording's grid."""
+    """(n_draws, n) draws of the sensor part of ``equation``'s residual on the recording's grid (kept in the
+    Context's cache: the prediction gate and the verdict both use them)."""
+    key = f"noise floor {equation} {n_draws} {seed} {clean_sigma}"
+    if key not in ctx._columns:
+        ctx._columns[key] = _draws(ctx, equation, n_draws, seed, clean_sigma)
+    return ctx._columns[key]
+
+
+def _draws(ctx: Context, equation: str, n_draws: int, seed: int, clean_sigma: float) -> np.ndarray:
     prep = ctx.prep
     sigma = ctx.states(equation).filt.sigma
     clean = smoothed(prep, ctx, clean_sigma)
