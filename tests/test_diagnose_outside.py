@@ -5,13 +5,16 @@ not `consistent` (the possible causes' blocked standard error and their share re
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from furuta_rt.config import load_rig
-from furuta_rt.diagnose import Options, diagnose, gate, suite
+from furuta_rt.diagnose import Options, diagnose, gate, suite, verify
+from furuta_rt.diagnose.engine import refit
 from furuta_rt.diagnose.library import ARM, PEND
-from furuta_rt.diagnose.verdict import _block_se, _removes_where_it_acts
+from furuta_rt.diagnose.verdict import FLOOR_ACCURACY, T_CRIT, _block_se, _removes_where_it_acts, band_t, block_t, mode_cause
 
 FAST = Options(closed_loop=False, max_windows=20)
 SECONDS = 30.0
@@ -19,33 +22,53 @@ SECONDS = 30.0
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """30 s recordings of the compliant coupling, a true input gain and Jp + 20 % without reference, diagnosed."""
+    """Recordings of the compliant coupling (60 s: in 30 s its remainder is the catch transient's, one time block that
+    the block test does not see — a known weakness), a true input gain and Jp + 20 % without reference (30 s)."""
     rig, cache = load_rig("thesis"), tmp_path_factory.mktemp("outside")
     coupling = (("coupling.rotor_inertia", 0.001), ("coupling.stiffness", 2.5), ("coupling.damping", 0.005))
-    cases = {"coupling": suite.Case("outside compliant arm coupling", (), 77, "sine", SECONDS, coupling),
+    cases = {"coupling": suite.Case("outside compliant arm coupling", (), 77, "sine", 2 * SECONDS, coupling),
              "gain": suite.Case("input_gain", ("input_gain.gain=0.8",), 25, "sine", SECONDS),
              "inertia": suite.Case("outside Jp +20% (no reference)", (), 76, None, SECONDS, (("plant.Jp", 1.2),))}
     diagnoses = {k: diagnose(suite.generate(c, rig, cache), rig, FAST) for k, c in cases.items()}
     return {k: (cases[k], d, d.to_json()) for k, d in diagnoses.items()}
 
 
-def test_compliant_coupling_names_no_effect_and_offers_a_mode(runs):
+def test_compliant_coupling_names_no_effect(runs):
+    """The coupling's quasi-static part looks like a 1–2 % gain or inertia and the selection may take it; what the
+    arm residual keeps (13–80× the floor's spectrum below 2 Hz) leaves the equation above its floor, and an effect
+    that does not then predict better is moved out."""
     case, _, js = runs["coupling"]
     assert js["effects"] == [], js["effects"]
-    moved = {m["name"]: m for m in js["not_predictive"]}
-    assert "input_gain" in moved and "band" in moved["input_gain"], moved
-    b = moved["input_gain"]["band"]
-    # the kernel twice as wide gives a gain far from the one fitted in the equation's own band
-    assert b["sigma_wide"] == pytest.approx(2 * b["sigma"], rel=0.05)
-    assert abs(b["value_wide"] - b["value"]) > gate.BAND_SHARE * min(abs(b["value"] - 1.0), abs(b["value"]))
     arm = js["equations"][ARM]
     assert arm["verdict"] in ("partly_explained", "unexplained"), arm
     assert arm["residual_nominal"] > 1.5 * arm["noise_floor"]
-    causes = arm["unexplained"]["possible_causes"]
-    assert causes[0]["key"] == "mode", causes
-    assert "compliance or mode" in js["summary"]
+    band = arm["test"]["band_nominal"]
+    assert band["power_ratio"] > 10 and band["band_hz"][1] <= 4.0, band  # a low-frequency excess
+    for m in js["not_predictive"]:
+        assert "band" in m or m["prediction"]["paired_t"] > -verify.T_DIFFERENT, m
     score = suite.outside_score(case, js)
-    assert score["verdict_right"] and score["cause_right"] and not score["false_effects"]
+    assert score["verdict_right"] and not score["false_effects"]
+
+
+def test_the_band_test_moves_stand_ins_for_the_coupling(runs):
+    """On the coupling recording, a gain, a saturation and an inertia fitted together (what the selection took
+    before the look-alike scoring changed) give a gain that doubles when the kernel is twice as wide: moved out by
+    the band test, and a `mode` cause is offered for it."""
+    _, d, _ = runs["coupling"]
+    em = d.models[ARM]
+    spec = em.spec0()
+    for name in ("input_gain", "input_saturation", "arm_inertia"):
+        spec = spec.with_effect(name)
+    res = {ARM: SimpleNamespace(selected=refit(em, spec))}
+    names = [(ARM, n) for n in ("input_gain", "input_saturation", "arm_inertia")]
+    bad = gate.band_check(d.context, {ARM: em}, res, names, FAST)
+    assert "input_gain" in bad, bad
+    b = bad["input_gain"]
+    assert b["sigma_wide"] == pytest.approx(2 * b["sigma"], rel=0.05)
+    assert abs(b["value_wide"] - b["value"]) > gate.BAND_SHARE * min(abs(b["value"] - 1.0), abs(b["value"]))
+    cause = mode_cause(ARM, [{"name": "input_gain", "equation": ARM, "band": b}])
+    assert cause is not None and cause["key"] == "mode" and "input_gain" in cause["value"]
+    assert mode_cause(ARM, []) is None
 
 
 def test_a_library_effect_passes_the_band_test(runs):
@@ -106,3 +129,28 @@ def test_share_removed_where_a_cause_acts():
     local = _removes_where_it_acts(0.2, sxx, syy)
     assert local == pytest.approx(0.6, abs=0.01)
     assert 0.2**2 * sxx.sum() / syy.sum() < 0.03
+
+
+def test_band_test_sees_a_low_frequency_excess_the_block_test_misses():
+    """A 0.7 Hz torque of 1/4 of the floor's rms: the time-block test (its power is 6 % of the floor's, within K²)
+    passes it; in its own octave the floor, which grows with frequency, is far below it. A residual that is a fresh
+    draw of the floor passes both."""
+    rng = np.random.default_rng(3)
+    dt, n = 0.002, 30000
+    t = np.arange(n) * dt
+    kernel = np.exp(-0.5 * (np.arange(-100, 101) * dt / 0.02) ** 2)
+    hp = np.array([1.0, -2.0, 1.0])  # a second difference: the floor's power grows with frequency, as through θ̈
+
+    def noise_draw() -> np.ndarray:
+        return np.convolve(np.convolve(rng.standard_normal(n), hp, "same"), kernel / kernel.sum(), "same")
+
+    floor = np.array([noise_draw() for _ in range(4)])
+    rows = np.ones(n, dtype=bool)
+    same = noise_draw()
+    assert block_t(same, floor) <= T_CRIT
+    assert band_t(same, floor, rows, dt, 0.04)[0] <= 1.0
+    slow = same + 0.25 * np.std(floor) * np.sqrt(2) * np.sin(2 * np.pi * 0.7 * t)
+    assert np.mean(slow**2) < FLOOR_ACCURACY**2 * np.mean(floor**2)
+    assert block_t(slow, floor) <= T_CRIT
+    score, where = band_t(slow, floor, rows, dt, 0.04)
+    assert score > 1.0 and where["band_hz"][0] <= 0.7 < where["band_hz"][1], where
