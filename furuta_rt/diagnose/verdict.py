@@ -9,9 +9,11 @@ accounts for the residual's correlation in time: the blocks, not the samples, ar
 
 and the residual is *within the noise floor* unless t > T_CRIT (one-sided t test at 0.5 % with B − 1 degrees of
 freedom) or at least 14 of the 16 blocks exceed it (a sign test, binomial p = 0.2 %: a large excess that varies
-much between blocks has a small t). K = FLOOR_ACCURACY is the accuracy of the floor estimate itself: on the
-simulator, where the true states are known, the Monte Carlo floor is 0.81–1.22× (rms) the true sensor part of the
-residual on every null case.
+much between blocks has a small t), or unless the per-band test (``band_t``) finds it above the floor in one octave
+band below the kernel's cut-off (a low-frequency mismatch meets there only its own band's floor, which the
+time-domain test dilutes with the floor's high-frequency power). K = FLOOR_ACCURACY is the accuracy of the floor
+estimate itself: on the simulator, where the true states are known, the Monte Carlo floor is 0.81–1.22× (rms) the
+true sensor part of the residual on every null case.
 
 Verdicts: ``consistent`` (the nominal residual is within the floor and no effect was selected), ``explained`` (it
 is not, or effects were selected — their own significance test, furuta_rt.diagnose.select, is more specific than the
