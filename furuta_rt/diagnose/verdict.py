@@ -139,7 +139,7 @@ def band_t(r: np.ndarray, floor: np.ndarray, rows: np.ndarray, dt: float, sigma:
         return 0.0, {}
     w = np.hanning(seg)
     f = np.fft.rfftfreq(seg, dt)
-    hi = 1.0 / (np.pi * sigma)
+    hi = 1.0 / (2.0 * np.pi * sigma)  # the kernel passes e^(−1/2) of the amplitude here; above, the floor is less sure
     lo = 2.0 / (seg * dt)
     edges = lo * 2.0 ** np.arange(0, np.ceil(np.log2(hi / lo)) + 1)
     edges[-1] = hi
