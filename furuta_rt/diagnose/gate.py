@@ -24,7 +24,8 @@ that becomes 0.24 has moved by a factor 2) and by more than BAND_Z combined stan
 effect — it stands in for dynamics outside eq. 4 (a compliance, a mode) whose effect on the residual depends on
 frequency. It is moved out with that reason, the rest refitted and tested again. In an equation so shown to hold
 dynamics outside eq. 4, the remaining inverse-dynamics effects must earn their place: each stays only if the model
-with it predicts the held-out windows better than without it (paired t ≥ verify.T_DIFFERENT); an effect that other
+with it predicts the held-out windows better than without it (paired t ≥ verify.T_DIFFERENT, or a prediction error
+lower by MIN_PREDICTIVE_GAIN: a single step has too few windows for a t); an effect that other
 dynamics can mimic (an input saturation clipping the fast peaks a compliance filters) would otherwise stay.
 """
 
@@ -56,6 +57,7 @@ EXEMPT = ("stick windows", "peak windows", "free decay")  # sources judged on th
 BAND_FACTOR = 2.0  # the band test's kernel is this many times wider than the equation's
 BAND_SHARE = 0.5  # an effect's value may move by less than this share of its departure from the nominal model ...
 BAND_Z = 4.0  # ... or by less than this many combined standard errors
+MIN_PREDICTIVE_GAIN = 0.05  # an effect that must earn its place stays when it lowers the prediction error this much
 
 
 @dataclass
@@ -332,7 +334,8 @@ def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResu
             rest = [g for g in found if g is not f]
             without, _ = gate.predict(rest, {**specs, eq: specs[eq].without(f.name)})
             t = paired_t(without.per_window, current.per_window) if current.windows > 1 else 0.0
-            if t < verify.T_DIFFERENT:
+            gain = (without.nrmse - current.nrmse) / without.nrmse if without.nrmse > 0 else 0.0
+            if t < verify.T_DIFFERENT and gain < MIN_PREDICTIVE_GAIN:  # few windows: a large gain is evidence too
                 what = ("the {eq} equation's fitted dynamics depend on the frequency band (dynamics outside eq. 4)"
                         if any(m["equation"] == eq for m in moved) else
                         "the {eq} equation's residual stays above its noise floor with its effects (physics is missing)")
