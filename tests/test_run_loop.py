@@ -257,14 +257,7 @@ def test_every_way_out_zeroes_the_device_before_it_is_told(rig: RigConfig, how: 
         kw["fail_at"] = 8  # the 8th logger put (a tick batch, after that tick's COMMAND) raises
         needle = "RuntimeError"
     else:
-        class Broken(Controller):
-            def update(self, m: Measurement) -> Any:
-                if m.t > 0.5:
-                    raise ZeroDivisionError("boom")
-                return super().update(m)
-
-        base = Controller.from_rig(rig)
-        kw["controller"] = Broken(base.gains, base.observer, base.compensator, base.u_limit)
+        kw["controller"] = broken_controller(rig)
         needle = "ZeroDivisionError"
     dev = SimDevice(rig, **sim_kw)
     loop, _ = make_loop(rig, dev, duration=10.0, **kw)
@@ -381,7 +374,9 @@ def test_a_full_log_queue_drops_and_counts_never_blocks(rig: RigConfig) -> None:
     assert (np.diff(counter) >= 0).all() and 0 < counter[-1] <= r.dropped_log_messages
 
 
-def test_an_exception_in_the_update_sends_zero_and_propagates(rig: RigConfig) -> None:
+def broken_controller(rig: RigConfig) -> Controller:
+    """The rig's controller, whose update raises ZeroDivisionError from t = 0.5 s on."""
+
     class Broken(Controller):
         def update(self, m: Measurement) -> Any:
             if m.t > 0.5:
@@ -389,7 +384,11 @@ def test_an_exception_in_the_update_sends_zero_and_propagates(rig: RigConfig) ->
             return super().update(m)
 
     base = Controller.from_rig(rig)
-    ctrl = Broken(base.gains, base.observer, base.compensator, base.u_limit)
+    return Broken(base.gains, base.observer, base.compensator, base.u_limit)
+
+
+def test_an_exception_in_the_update_sends_zero_and_propagates(rig: RigConfig) -> None:
+    ctrl = broken_controller(rig)
     dev = SimDevice(rig)
     loop, _ = make_loop(rig, dev, duration=2.0, controller=ctrl)
     with pytest.raises(ZeroDivisionError):
