@@ -154,3 +154,14 @@ def test_band_test_sees_a_low_frequency_excess_the_block_test_misses():
     assert block_t(slow, floor) <= T_CRIT
     score, where = band_t(slow, floor, rows, dt, 0.04)
     assert score > 1.0 and where["band_hz"][0] <= 0.7 < where["band_hz"][1], where
+
+
+def test_consistent_says_what_the_recording_could_have_seen(runs):
+    """A `consistent` pendulum equation of a sine-excited run states the smallest pendulum-inertia change it could
+    have seen: below the 20 % that the outside group's Jp case has (which it does see), above zero."""
+    _, _, js = runs["gain"]
+    pend = js["equations"][PEND]
+    assert pend["verdict"] == "consistent", pend
+    change = pend["detectable_change"]
+    assert 0.0 < change["Jp"] < 0.2, change
+    assert "theta_scale" in change and "theta_sign" not in change

@@ -89,6 +89,7 @@ class EquationVerdict:
     remainder: Location | None = field(default=None, repr=False)
     band_nominal: dict = field(default_factory=dict)  # the per-band test's band of largest excess (band_t)
     band_augmented: dict = field(default_factory=dict)
+    detectable: dict[str, float] = field(default_factory=dict)  # consistent: cause → smallest relative change seen
 
     def as_json(self) -> dict:
         out = {"verdict": self.verdict, "residual_nominal": self.residual_nominal,
@@ -99,6 +100,8 @@ class EquationVerdict:
                "unexplained": self.unexplained}
         if self.reason:
             out["reason"] = self.reason
+        if self.detectable:
+            out["detectable_change"] = self.detectable
         return out
 
 
@@ -228,7 +231,8 @@ def assess(ctx: Context, ems: dict, res: dict, seed: int = 0, found: list | None
             v.verdict = "unexplained"
         remaining[eq] = (y_aug, rows, ms_floor, floor)
         out[eq] = v
-    causes = possible_causes(ctx, remaining) if remaining else []
+    detect: dict = {}
+    causes = possible_causes(ctx, remaining, detect) if remaining else []
     modes = {eq: mode_cause(eq, [m for m in moved or [] if m.get("equation") == eq and "band" in m]) for eq in out}
     for eq, v in out.items():
         mine = [c for c in causes if c["removes_where_it_acts"].get(eq, 0.0) >= CAUSE_REMOVES]
@@ -242,6 +246,8 @@ def assess(ctx: Context, ems: dict, res: dict, seed: int = 0, found: list | None
                         f"its size is within the noise floor, but it follows the signature of {mine[0]['cause']} "
                         f"(t = {abs(mine[0]['coefficient']) / mine[0]['se']:.0f}, removes "
                         f"{100 * mine[0]['removes_where_it_acts'][eq]:.0f} % of it where that signature is)")
+        if v.verdict == "consistent":  # what the recording could have seen: consistent within that, not beyond
+            v.detectable = {k: d["smallest_change"] for k, d in detect.items() if d["share"].get(eq, 0.0) >= 0.1}
         if v.verdict in ("partly_explained", "unexplained"):
             y_aug, rows, _, _ = remaining[eq]
             v.remainder = locate(ctx, eq, y_aug, rows)
@@ -387,11 +393,13 @@ def cause_columns(ctx: Context, equations: list[str]) -> list[tuple[str, str, Co
     return out
 
 
-def possible_causes(ctx: Context, remaining: dict[str, Remaining]) -> list[dict]:
+def possible_causes(ctx: Context, remaining: dict[str, Remaining], detect: dict | None = None) -> list[dict]:
     """Each cause fitted alone to the remaining residuals of both equations jointly (each equation weighted by its
     noise floor; the secant columns refitted at the estimate, twice), with a blocked standard error over time blocks
     (``_block_se``, at least the spread on the noise floor's draws); the significant ones (``CAUSE_T`` standard
-    errors, removing ``CAUSE_REMOVES`` of the residual where they act), best first."""
+    errors, removing ``CAUSE_REMOVES`` of the residual where they act), best first. ``detect``, if given, receives
+    per plant-parameter or sensor-scale cause the smallest relative change the recording could have seen
+    (CAUSE_T standard errors) and each equation's share of the cause's weight."""
     eqs = list(remaining)
     t = ctx.prep.t
     edges = np.linspace(t[0], t[-1], N_BLOCKS + 1)
@@ -419,6 +427,12 @@ def possible_causes(ctx: Context, remaining: dict[str, Remaining]) -> list[dict]
         if sxx.sum() <= 0 or not np.isfinite(a):
             continue
         se = max(_block_se(sxy, sxx, a), _null_spread(remaining, cols))
+        if detect is not None and not key.endswith("_sign"):
+            weight = {eq: float(cols[eq][remaining[eq][1]] @ cols[eq][remaining[eq][1]]) / max(remaining[eq][2], 1e-300)
+                      for eq in eqs}
+            total = sum(weight.values()) or 1.0
+            detect[key] = {"cause": name, "smallest_change": CAUSE_T * se,
+                           "share": {eq: w / total for eq, w in weight.items()}}
         removes_all = a * a * sxx.sum() / syy if syy > 0 else 0.0
         local = _removes_where_it_acts(a, sxx, syy_b)
         if abs(a) < CAUSE_T * se or local < CAUSE_REMOVES:
