@@ -20,6 +20,7 @@ import threading
 from collections.abc import Callable
 from pathlib import Path
 
+from firmware_protocol.hostbuild import BuildError
 from furuta_rt.errors import UserError
 from hil_mock.config import MockConfig, build_config
 from hil_mock.device import VirtualDevice
@@ -46,6 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spin-us", type=float, metavar="US", help="busy-wait before each deadline (default 100)")
     p.add_argument("--priority", choices=("normal", "realtime"),
                    help="realtime (default): SCHED_FIFO for the device thread if permitted, else nice -10")
+    p.add_argument("--firmware", choices=("python", "c"),
+                   help="device logic: python (default) or c, the microcontroller's C core built for this machine")
     p.add_argument("--fault", action="append", default=[], metavar="KIND@T[:DUR]",
                    help="scheduled fault, e.g. stall@2.0:100ms, reset@3, disconnect@5, mute@1:50ms, deaf@1:50ms")
     p.add_argument("--corrupt-rate", type=float, metavar="P", help="flip a bit in each device→host byte with probability P")
@@ -71,7 +74,7 @@ def config_from_args(args: argparse.Namespace) -> MockConfig:
         device={
             "rate_hz": args.rate, "watchdog_ms": args.watchdog_ms, "seed": args.seed,
             "initial_theta": args.initial_theta, "substep_hz": args.substep_hz, "pacing": args.pacing,
-            "spin_us": args.spin_us, "priority": args.priority,
+            "spin_us": args.spin_us, "priority": args.priority, "firmware": args.firmware,
         },
         fault_settings={
             "corrupt_rate": args.corrupt_rate, "drop_rate": args.drop_rate, "rx_corrupt_rate": args.rx_corrupt_rate,
@@ -113,7 +116,7 @@ def serve(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
     try:
         device = VirtualDevice(cfg)
-    except ValueError as err:
+    except (ValueError, BuildError) as err:
         raise UserError(str(err)) from None
     link = _make_link(args.link, device.port) if args.link else None
     if args.exit_with_fd is not None:

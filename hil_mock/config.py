@@ -64,6 +64,7 @@ class DeviceSettings(_Section):
     spin_us: Annotated[float, Field(ge=0, le=2000)] = 100.0
     priority: Literal["normal", "realtime"] = "realtime"
     late_threshold_us: Annotated[float, Field(gt=0)] | None = None  # default: a quarter period
+    firmware: Literal["python", "c"] = "python"  # device logic: hil_mock.firmware or the C core (hil_mock.c_firmware)
 
 
 class FaultSettings(_Section):

@@ -32,9 +32,9 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from furuta_rt.model.rig import RigModel
+from hil_mock.c_firmware import make_firmware
 from hil_mock.config import MockConfig
 from hil_mock.faults import FaultEvent, LinkFaults
-from hil_mock.firmware import Firmware
 from hil_mock.ptyport import open_raw_pty
 from hil_mock.timing import TickTiming, raise_priority, set_timer_slack, wait_until
 
@@ -124,7 +124,7 @@ class VirtualDevice:
         model = RigModel.from_config(rig, self.config.effects)
         self.rig = rig
         dev = self.config.device
-        self.firmware = Firmware(rig, model, dev, self.config.rate_hz(rig))
+        self.firmware = make_firmware(dev.firmware, rig, model, dev, self.config.rate_hz(rig))
         f = self.config.faults
         self.link = LinkFaults(f.corrupt_rate, f.drop_rate, f.rx_corrupt_rate, f.rx_drop_rate, f.seed)
         self.delay_s = f.delay_ms / 1000.0

@@ -75,6 +75,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--mock-seed", type=int, metavar="N", help="sensor-noise seed of the mock")
     m.add_argument("--mock-initial-theta", type=float, metavar="RAD", default=0.05,
                    help="pendulum angle when the mock starts (default 0.05 rad: arms at once)")
+    m.add_argument("--mock-firmware", choices=("python", "c"),
+                   help="the mock's device logic: python (default) or c, the DAQ firmware's C core built for this machine")
     m.add_argument("--mock-arg", action="append", default=[], metavar="ARG",
                    help="any other hil-mock argument, e.g. --mock-arg=--drop-rate=0.001 (repeatable)")
     p.set_defaults(func=run)
@@ -100,6 +102,8 @@ def mock_arguments(args: argparse.Namespace, rig_source: str, rate: int, watchdo
         out += ["--fault", f]
     if args.mock_seed is not None:
         out += ["--seed", str(args.mock_seed)]
+    if args.mock_firmware is not None:
+        out += ["--firmware", args.mock_firmware]
     return out + list(args.mock_arg)
 
 
@@ -126,9 +130,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--tui and --no-tui contradict each other; give one of them")
     if args.log is not None:
         _check_log_argument(args.log, args.force)
-    has_mock_opts = args.mock_effect or args.mock_fault or args.mock_arg or args.mock_seed is not None
+    has_mock_opts = (args.mock_effect or args.mock_fault or args.mock_arg or args.mock_seed is not None
+                     or args.mock_firmware is not None)
     if has_mock_opts and not args.mock:
-        raise UserError("--mock-effect/--mock-fault/--mock-seed/--mock-arg only apply with --mock")
+        raise UserError("--mock-effect/--mock-fault/--mock-seed/--mock-firmware/--mock-arg only apply with --mock")
     rig = rig_from_args(args)
     gains = parse_gains(args.gains)
     rig = effective_rig(rig, args.rate, args.comp, gains)

@@ -1,0 +1,77 @@
+"""The DAQ firmware core (firmware/core, firmware/host) built for this machine as a shared library.
+
+hil_mock loads it to run the C firmware as its device logic (``hil-mock --firmware c``). The library is
+built once per source/compiler combination with the system C compiler and cached outside the source
+tree: in ``$FURUTA_RT_BUILD_DIR``, else ``$XDG_CACHE_HOME/furuta-rt`` (default ``~/.cache/furuta-rt``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+PACKAGE_DIR = Path(__file__).parent
+FIRMWARE_DIR = PACKAGE_DIR / "firmware"
+CODEC_DIR = PACKAGE_DIR / "c"
+CORE_DIR = FIRMWARE_DIR / "core"
+SOURCES = (CORE_DIR / "fw_core.c", FIRMWARE_DIR / "host" / "host_hal.c", CODEC_DIR / "furuta_proto.c")
+HEADERS = (CORE_DIR / "fw_core.h", CORE_DIR / "fw_hal.h", CODEC_DIR / "furuta_proto.h")
+REQUIRED_FLAGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic")
+HOST_FLAGS = (*REQUIRED_FLAGS, "-O2", "-fPIC", "-shared", f"-I{CORE_DIR}", f"-I{CODEC_DIR}")
+LIBRARY_NAME = "libfuruta_fw"
+
+
+class BuildError(RuntimeError):
+    """The host build of the firmware failed; the message is one line naming the cause."""
+
+
+def build_dir() -> Path:
+    """Where built firmware libraries are cached (outside the source tree)."""
+    explicit = os.environ.get("FURUTA_RT_BUILD_DIR")
+    if explicit:
+        return Path(explicit)
+    cache = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(cache) / "furuta-rt"
+
+
+def _compiler() -> str:
+    cc = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
+    if not cc:
+        raise BuildError("no C compiler found (install gcc, or set CC) to build the C firmware for the host")
+    return cc
+
+
+def _key(cc: str) -> str:
+    h = hashlib.sha256()
+    version = subprocess.run([cc, "--version"], capture_output=True, text=True, check=False).stdout
+    for part in (cc, version, *HOST_FLAGS):
+        h.update(part.encode())
+    for path in (*SOURCES, *HEADERS):
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def host_library() -> Path:
+    """The shared library of the firmware core with the host HAL; built if not cached."""
+    cc = _compiler()
+    out = build_dir() / f"{LIBRARY_NAME}-{_key(cc)}.so"
+    if out.exists():
+        return out
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{LIBRARY_NAME}-", suffix=".so", dir=out.parent)
+    os.close(fd)
+    try:
+        res = subprocess.run([cc, *HOST_FLAGS, *map(str, SOURCES), "-o", tmp], capture_output=True, text=True,
+                             timeout=120, check=False)
+        if res.returncode != 0:
+            first = (res.stderr.strip().splitlines() or ["(no output)"])[0]
+            raise BuildError(f"building the C firmware for the host failed: {first}")
+        os.replace(tmp, out)  # atomic: concurrent builders agree on the result
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return out

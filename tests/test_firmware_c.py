@@ -1,0 +1,278 @@
+"""The DAQ firmware's C core (firmware_protocol/firmware) as hil_mock's device, against the Python device.
+
+* Conformance: one scripted host session — handshake (a refused one first), device-timed sampling, a
+  closed loop, stale and future COMMANDs, late answers, the watchdog and the CLEAR_FAULT rule, CONFIG
+  applied and rejected, an overrun, a TX overflow, a corrupted and chopped link, a reset, STOP, a hang-up,
+  the pendulum falling onto the ADC rail — runs against the Python device (hil_mock.firmware) and the C
+  device (hil_mock.c_firmware, the same C that is cross-compiled for the board). Every frame either device
+  sends is compared byte for byte (HELLO_ACK's firmware version aside), with the actuator output of every
+  tick and the plant's state at the end.
+* The same C over a real pty: the pty acceptance run of tests/test_hil_mock.py (handshake, 1 s of SAMPLEs
+  without a gap, the plant answering, the watchdog zeroing the actuator), and ``furuta-rt run --mock
+  --mock-firmware c`` balancing.
+* The C acceptance rule agrees with firmware_protocol.acceptance on the modulo-2³² edges; the core builds
+  with the strict flags and uses no libc but memcpy/memset (no allocation).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import random
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+from test_hil_mock import done_when
+from test_reliability_harness import DaemonProcess, read_summary, traceback_free
+
+from firmware_protocol import (
+    FAULT_MASK,
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    CommandFlags,
+    Config,
+    Hello,
+    HelloAck,
+    Sample,
+    StatusFlags,
+    Stop,
+    StreamDecoder,
+    command_accepted,
+    encode,
+    encode_command,
+)
+from firmware_protocol.hostbuild import CODEC_DIR, CORE_DIR, REQUIRED_FLAGS
+from furuta_rt.model.rig import RigModel
+from hil_mock.c_firmware import load_library, make_firmware
+from hil_mock.config import build_config
+from hil_mock.device import VirtualDevice
+from hil_mock.faults import LinkFaults
+from hil_mock.firmware import Firmware
+
+ENABLE = int(CommandFlags.ENABLE)
+CLEAR = int(CommandFlags.CLEAR_FAULT)
+F = StatusFlags
+
+
+def new_device(kind: str, rate: int = 500, **device: object) -> Firmware:
+    cfg = build_config(device={"rate_hz": rate, **device})
+    rig = cfg.load_rig()
+    return make_firmware(kind, rig, RigModel.from_config(rig, cfg.effects), cfg.device, rate)
+
+
+class ScriptedHost:
+    """A host whose every action depends only on what the device sent, so two devices that agree byte for byte
+    receive the same bytes. ``trace`` gets one entry per device frame and one per tick (the output)."""
+
+    def __init__(self, fw: Firmware) -> None:
+        self.fw = fw
+        self.dec = StreamDecoder()
+        self.trace: list[object] = []
+        self.samples: list[Sample] = []
+        self.link: LinkFaults | None = None
+
+    def send(self, data: bytes) -> None:
+        if self.link is not None:
+            data = self.link.rx(data)
+        self.fw.receive(data)
+        self._collect()
+
+    def _collect(self) -> None:
+        for frame in self.fw.tx:
+            msg = self.dec.feed(frame)
+            if msg and type(msg[0]) is HelloAck:  # the firmware version is the one field allowed to differ
+                self.trace.append(dataclasses.replace(msg[0], fw_major=0, fw_minor=0, fw_patch=0))
+            else:
+                self.trace.append(frame)
+            self.samples += [m for m in msg if type(m) is Sample]
+        self.fw.tx.clear()
+
+    def tick(self, n: int = 1) -> None:
+        for _ in range(n):
+            self.fw.tick()
+            self._collect()
+            self.trace.append(("output", self.fw.output, self.fw.streaming))
+
+    def hello(self, schema_hash: int = SCHEMA_HASH, nonce: int = 7) -> None:
+        self.send(b"\x00" + encode(Hello(PROTOCOL_VERSION, schema_hash, nonce)))  # §2.1: flush a partial frame
+
+    def answer(self, flags: int = ENABLE, gain: int = -40) -> None:
+        """A proportional COMMAND on θ's ADC answering the newest SAMPLE (CLEAR_FAULT when a fault shows)."""
+        s = self.samples[-1]
+        counts = max(-32768, min(32767, gain * s.theta_adc))
+        self.send(encode_command(s.seq, counts, flags | (CLEAR if s.status & FAULT_MASK else 0)))
+
+    def balance(self, ticks: int) -> None:
+        for _ in range(ticks):
+            self.tick()
+            self.answer()
+
+
+def session(fw: Firmware) -> ScriptedHost:
+    """The scripted session (see the module docstring); returns the host with its trace."""
+    h = ScriptedHost(fw)
+    rng = random.Random(3)
+    h.tick(3)  # idle: nothing is sent
+    h.send(bytes(rng.randrange(256) for _ in range(60)))  # line noise before the host speaks
+    h.hello(schema_hash=SCHEMA_HASH ^ 0x100)  # refused: HELLO_ACK with the device's own identity, no streaming
+    h.tick(2)
+    h.hello()
+    h.tick()
+    h.balance(300)  # handshake, sampling, the closed loop (the STATUS of the first second comes at tick 500)
+    for k in range(120):  # stale and future COMMANDs around every answer; late and double answers
+        h.tick()
+        seq = h.samples[-1].seq
+        h.send(encode_command(seq + 1, 9999, ENABLE))  # answers a SAMPLE not sent yet: discarded
+        if k % 7:
+            h.answer()
+        h.send(encode_command(seq - 2, -9999, ENABLE))  # older than the accepted one: discarded
+        if k % 11 == 0:
+            h.tick()  # no answer to this SAMPLE: COMMAND_LATE, output held
+    h.tick(15)  # 30 ms without a COMMAND: the watchdog trips and zeroes the output
+    h.send(encode_command(h.samples[-1].seq, 5000, ENABLE))  # no CLEAR_FAULT: stays zero
+    h.tick()
+    h.balance(40)  # CLEAR_FAULT (output zero on that tick), then ENABLE again
+    h.send(encode(Config(1000, 30)))  # applied: output zero, ENABLE needed again, seq continues
+    h.balance(20)
+    h.send(encode(Config(0, 30)))  # rejected: CONFIG_REJECTED, old values kept
+    h.balance(20)
+    h.send(encode(Config(500, 20)))
+    h.balance(20)
+    fw.skip(3)  # the timer fired three times without the tick: TICK_OVERRUN, seq kept
+    h.balance(5)
+    fw.note_tx_overflow()
+    h.balance(5)
+    h.link = LinkFaults(0.0, 0.0, 0.004, 0.002, seed=11)  # corrupted and dropped host→device bytes
+    for k in range(300):
+        h.tick()
+        s = h.samples[-1]
+        frame = encode_command(s.seq, max(-32768, min(32767, -40 * s.theta_adc)), ENABLE | CLEAR)
+        if k % 13 == 0:  # a COMMAND split over two ticks
+            h.send(frame[:5])
+            h.tick()
+            h.send(frame[5:])
+        elif k % 17 == 0:  # junk with an over-long run, then a truncated frame
+            h.send(bytes(rng.randrange(1, 256) for _ in range(70)) + b"\x00" + frame[:-3] + b"\x00")
+        else:
+            h.send(frame)
+    h.link = None
+    h.balance(20)
+    fw.reboot()  # device reset: idle, no SAMPLE until a new HELLO; the plant runs on
+    h.tick(5)
+    h.hello(nonce=8)
+    h.balance(30)
+    h.send(encode(Stop(0)))  # idle, output zero
+    h.tick(5)
+    h.hello(nonce=9)  # a new session on an idle device: the rig is put back at its initial state
+    h.balance(30)
+    fw.hangup()  # the host closed the port
+    h.tick(3)
+    h.hello(nonce=10)
+    h.tick(800)  # nobody answers: the watchdog trips, the pendulum falls onto θ's ADC rail
+    h.answer(flags=ENABLE)  # CLEAR_FAULT while θ still reads the rail: ADC_OVERRANGE stays
+    h.tick(3)
+    return h
+
+
+@pytest.fixture(scope="module")
+def sessions() -> dict[str, ScriptedHost]:
+    return {kind: session(new_device(kind)) for kind in ("python", "c")}
+
+
+def test_c_and_python_devices_send_the_same_bytes(sessions: dict[str, ScriptedHost]) -> None:
+    py, c = sessions["python"], sessions["c"]
+    assert len(py.trace) > 3000
+    first = next((i for i, (a, b) in enumerate(zip(py.trace, c.trace, strict=False)) if a != b), None)
+    assert first is None, f"first difference at trace entry {first}: python {py.trace[first]!r}, c {c.trace[first]!r}"
+    assert len(py.trace) == len(c.trace)
+    assert c.fw.sim.state == py.fw.sim.state  # the same plant, driven by the same outputs
+    for name in ("commands_rx", "commands_applied", "commands_discarded", "watchdog_trips", "handshakes",
+                 "handshakes_refused", "samples_sent", "status_sent", "hangups", "reboots", "replacements"):
+        assert getattr(c.fw, name) == getattr(py.fw, name), name
+    assert (c.fw.decoder.crc_errors, c.fw.decoder.errors) == (py.fw.decoder.crc_errors, py.fw.decoder.errors)
+
+
+def test_the_session_exercises_every_rule(sessions: dict[str, ScriptedHost]) -> None:
+    """The comparison above is only as good as the session: each rule and flag must have been hit."""
+    fw = sessions["c"].fw
+    seen = 0
+    for s in sessions["c"].samples:
+        seen |= s.status
+    for flag in (F.WATCHDOG_TRIPPED, F.ADC_OVERRANGE, F.CRC_ERROR, F.ENABLED, F.COMMAND_LATE, F.TICK_OVERRUN,
+                 F.CONFIG_REJECTED, F.TX_OVERFLOW):
+        assert seen & flag, flag.name
+    assert fw.handshakes == 4 and fw.handshakes_refused == 1 and fw.reboots == 1 and fw.hangups == 1
+    assert fw.replacements == 3 and fw.watchdog_trips == 2  # after the reset, the STOP and the hang-up
+    assert fw.commands_discarded > 200 and fw.decoder.crc_errors > 0 and fw.decoder.errors > fw.decoder.crc_errors
+    last = sessions["c"].samples[-1]
+    assert last.theta_adc == 32767 and last.status & F.ADC_OVERRANGE and fw.output == 0.0
+    seqs = [s.seq for s in sessions["c"].samples[-800:]]
+    assert seqs == list(range(seqs[0], seqs[0] + 800))  # no seq skipped, the overrun included
+
+
+@pytest.mark.parametrize("kind", ["python", "c"])
+def test_watchdog_zeroes_the_output_20ms_after_the_last_command(kind: str) -> None:
+    h = ScriptedHost(new_device(kind, rate=1000))
+    h.hello()
+    h.tick()
+    for _ in range(5):
+        h.send(encode_command(h.samples[-1].seq, 3000, ENABLE))
+        h.tick()
+    assert h.fw.output > 0
+    h.tick(25)
+    tripped = [s.seq for s in h.samples if s.status & F.WATCHDOG_TRIPPED]
+    assert tripped[0] == 25 and h.fw.output == 0.0  # last COMMAND applied at tick 5, 20 ms at 1 kHz
+
+
+def test_c_acceptance_rule_agrees_with_the_shared_one() -> None:
+    lib = load_library()
+    edges = [0, 1, 2, 5, 0x7FFFFFFF, 0x80000000, 0x80000001, 0xFFFFFFFE, 0xFFFFFFFF]
+    rng = random.Random(1)
+    values = edges + [rng.randrange(1 << 32) for _ in range(6)]
+    n = 0
+    for seq in values:
+        for sent in [None, *values]:
+            for acc in [None, *values]:
+                want = command_accepted(seq, sent, acc)
+                got = lib.host_command_accepted(seq, sent is not None, sent or 0, acc is not None, acc or 0)
+                assert bool(got) == want, (seq, sent, acc)
+                n += 1
+    assert n == 15 * 16 * 16
+
+
+def test_core_builds_strictly_and_allocates_nothing(tmp_path: Path) -> None:
+    gcc = shutil.which("gcc") or "gcc"
+    obj = tmp_path / "fw_core.o"
+    extra = ["-Wconversion", "-Wsign-conversion", "-Wshadow", "-Wstrict-prototypes", "-Wmissing-prototypes"]
+    res = subprocess.run([gcc, *REQUIRED_FLAGS, *extra, "-O2", f"-I{CORE_DIR}", f"-I{CODEC_DIR}", "-c",
+                          str(CORE_DIR / "fw_core.c"), "-o", str(obj)], capture_output=True, text=True, check=False)
+    assert res.returncode == 0, res.stderr
+    nm = subprocess.run(["nm", "-u", str(obj)], capture_output=True, text=True, check=True).stdout.split()
+    undefined = {s for s in nm if s != "U"}
+    assert undefined <= {"memcpy", "memset", "fp_decoder_init", "fp_decoder_push", "fp_encode"} | {
+        f"hal_{n}" for n in ("encoder_count", "encoder_fault", "adc_theta", "adc_theta_dot", "actuator_write",
+                             "uart_write", "tick_rate", "session_started")}, undefined
+    assert "hal_actuator_write" in undefined and "malloc" not in undefined
+
+
+def test_c_device_over_a_pty_passes_the_acceptance_run() -> None:
+    cfg = build_config(device={"rate_hz": 500, "initial_theta": 0.0, "firmware": "c"})
+    with VirtualDevice(cfg) as dev:
+        done_when(dev.port)
+        assert dev.firmware.output == 0.0  # the actuator itself, after the watchdog
+        st = dev.stats
+        assert st.watchdog_trips >= 1 and st.commands_rx == 550 and st.crc_errors == 0 and st.samples_sent >= 560
+
+
+@pytest.mark.hil
+def test_furuta_rt_run_balances_with_the_c_device(tmp_path: Path) -> None:
+    """`furuta-rt run --mock --mock-firmware c` (the README's main job with the C device), 3 s."""
+    d = DaemonProcess(["--mock", "--mock-firmware", "c", "--duration", "3", "--no-tui",
+                       "--summary-json", str(tmp_path / "summary.json")])
+    rc = d.wait(timeout=120)
+    assert traceback_free(d.stderr + d.stdout), d.stderr
+    assert rc == 0, f"exit {rc}\n{d.stderr}\n{d.stdout}"
+    assert "firmware 0.2.0" in d.stdout + d.stderr  # the C core's HELLO_ACK (the Python device says 0.1.0)
+    s = read_summary(tmp_path)
+    assert s["end"] == "duration" and s["ticks"] == 3 * 500 and s["balanced_s"] > 2.9
