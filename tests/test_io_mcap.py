@@ -209,9 +209,9 @@ def test_bad_tick_messages_are_skipped_with_a_warning(tmp_path: Path, rig: RigCo
     fields = {k: 0 for k in ls.TICK_FIELDS} | {"t": 0.0, "saturated": False, "reset": False, "state": "idle", "mode": "none"}
     path = tmp_path / "odd.mcap"
     with LogWriter(path, rig, run_metadata("none", [1, 2, 3, 4], 500)) as w:
-        w.tick(0, 0, fields)
+        w.tick(0, fields)
         w._writer.add_message(w._tick, 1, b"{not json", 1)  # a damaged payload
-        w.tick(2, 2, fields | {"seq": 2, "t": 0.004})
+        w.tick(2, fields | {"seq": 2, "t": 0.004})
         w._writer.add_message(w._tick, 3, json.dumps({"seq": 3, "t": 0.006}).encode(), 3)  # fields missing
     log = read_log(path)
     assert log.ticks["seq"].tolist() == [0, 2, 3] and np.isnan(log.ticks["u"][2])

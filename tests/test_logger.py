@@ -69,7 +69,7 @@ def test_layout_foxglove_can_plot(tmp_path: Path, rig: RigConfig) -> None:
         by_topic = {summary.channels[cid].topic: c for cid, c in counts.items()}
         assert by_topic[ls.TICK_TOPIC] == by_topic[ls.TIMING_TOPIC] == by_topic[ls.JOINT_STATES_TOPIC] == n
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
-        assert set(metadata) == {ls.RIG_METADATA, ls.RUN_METADATA, ls.DEVICE_METADATA}
+        assert set(metadata) == {ls.RIG_METADATA, ls.RUN_METADATA, ls.DEVICE_METADATA, ls.TIME_BASE_METADATA}
         assert metadata[ls.DEVICE_METADATA]["device_id"] == "0x4d4f434b"
         (att,) = list(reader.iter_attachments())
         assert att.name == ls.RIG_ATTACHMENT

@@ -193,8 +193,7 @@ def run_host_loop(pieces: list[bytes], *, link_timeout_s: float, rate: int = 500
 
 
 # ------------------------------------------------------------------ MCAP read-back
-NODE_SCRIPT = r"""
-// Count messages per topic with @mcap/core's McapStreamReader (independent of the Python mcap package).
+NODE_PRELUDE = r"""
 const fs = require("fs");
 const { McapStreamReader } = require("@mcap/core");
 const zstd = require("@foxglove/wasm-zstd");
@@ -208,7 +207,12 @@ const lz4 = require("@foxglove/wasm-lz4");
   };
   const reader = new McapStreamReader({ decompressHandlers });
   const data = fs.readFileSync(process.argv[2]);
-  const channels = new Map();
+"""
+"""The start of both node scripts: @mcap/core's McapStreamReader with zstd/lz4, over the file argv[2]."""
+
+NODE_SCRIPT = r"""
+// Count messages per topic with @mcap/core's McapStreamReader (independent of the Python mcap package).
+""" + NODE_PRELUDE + r"""  const channels = new Map();
   const topics = {};
   const last = {};
   let error = null;
@@ -227,6 +231,29 @@ const lz4 = require("@foxglove/wasm-lz4");
   }
   console.log(JSON.stringify({ reader: "@mcap/core McapStreamReader", complete: reader.done(), error, topics,
                                max_log_time: last, bytes_left: reader.bytesRemaining() }));
+})().catch((e) => { console.error(String(e)); process.exit(3); });
+"""
+
+NODE_TIMES_SCRIPT = r"""
+// Every message's log_time, publish_time and JSON `timestamp` (ns as text), and the metadata, with @mcap/core.
+""" + NODE_PRELUDE + r"""  reader.append(new Uint8Array(data.buffer, data.byteOffset, data.byteLength));
+  const channels = new Map();
+  const metadata = {};
+  const messages = [];
+  const text = new TextDecoder();
+  for (let rec; (rec = reader.nextRecord()); ) {
+    if (rec.type === "Channel") channels.set(rec.id, rec.topic);
+    else if (rec.type === "Metadata") metadata[rec.name] = Object.fromEntries(rec.metadata);
+    else if (rec.type === "Message") {
+      const body = JSON.parse(text.decode(rec.data));
+      const ts = body.timestamp;
+      const stamp = ts ? (BigInt(ts.sec) * 1000000000n + BigInt(ts.nsec)).toString() : null;
+      messages.push([channels.get(rec.channelId), rec.logTime.toString(), rec.publishTime.toString(), stamp,
+                     body.seq === undefined ? null : body.seq, body.t === undefined ? null : body.t,
+                     body.message === undefined ? null : body.message]);
+    }
+  }
+  console.log(JSON.stringify({ reader: "@mcap/core McapStreamReader", metadata, messages }));
 })().catch((e) => { console.error(String(e)); process.exit(3); });
 """
 
@@ -251,9 +278,10 @@ def ensure_node_mcap() -> Path | None:
                                   cwd=NPM_CACHE, capture_output=True, text=True, timeout=300)
             if proc.returncode != 0:
                 return None
-        script = NPM_CACHE / "count_mcap.cjs"
-        if not script.exists() or script.read_text() != NODE_SCRIPT:
-            script.write_text(NODE_SCRIPT)
+        for name, text in (("count_mcap.cjs", NODE_SCRIPT), ("times_mcap.cjs", NODE_TIMES_SCRIPT)):
+            script = NPM_CACHE / name
+            if not script.exists() or script.read_text() != text:
+                script.write_text(text)
         return modules
 
 
@@ -273,6 +301,21 @@ def independent_mcap_counts(path: str | Path) -> dict[str, Any]:
     if proc.returncode != 0 or not proc.stdout.strip():
         raise RuntimeError(f"{INDEPENDENT_READER} failed on {path} ({proc.returncode}): {proc.stderr.strip()[:300]}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def independent_mcap_times(path: str | Path) -> dict[str, Any]:
+    """Every message's [topic, log_time, publish_time, JSON timestamp (ns), seq, t, message] (times as int) and
+    the metadata, read by @mcap/core under node (raises if it cannot run, as independent_mcap_counts)."""
+    modules = ensure_node_mcap()
+    if modules is None:
+        raise RuntimeError(f"the independent MCAP reader ({INDEPENDENT_READER}) is unavailable (node/npm)")
+    proc = subprocess.run(["node", str(NPM_CACHE / "times_mcap.cjs"), str(path)], capture_output=True, text=True,
+                          timeout=120, env={**os.environ, "NODE_PATH": str(modules)})
+    if proc.returncode != 0 or not proc.stdout.strip():
+        raise RuntimeError(f"{INDEPENDENT_READER} failed on {path} ({proc.returncode}): {proc.stderr.strip()[:300]}")
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    out["messages"] = [[m[0], int(m[1]), int(m[2]), None if m[3] is None else int(m[3]), *m[4:]] for m in out["messages"]]
+    return out
 
 
 # ------------------------------------------------------------------ HIL: a recording mock + the real daemon

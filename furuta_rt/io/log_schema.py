@@ -1,7 +1,15 @@
 """The MCAP log layout shared by the daemon's writer, replay, convert and diagnose.
 
-Every message is JSON with a JSON Schema (Foxglove plots it without plugins). ``log_time`` is the host
-clock in ns; ``publish_time`` the device clock in ns (from the SAMPLE's µs timestamp, unwrapped).
+Every message is JSON with a JSON Schema (Foxglove plots it without plugins).
+
+One time base: every message's ``log_time``, ``publish_time`` and schema ``timestamp`` are the same clock,
+the host's wall clock in ns since the Unix epoch, so Foxglove's log-time and header-time modes agree. A
+tick's time is its device time (the SAMPLE's µs timestamp, unwrapped) mapped onto the wall clock with the
+offset taken at the first SAMPLE after the handshake: ``time_ns = device_ns + device_offset_ns``, recorded
+in the "time_base" metadata (written when the first tick arrives). Events carry the host wall clock at the
+moment they happened. The tick's own ``t`` field stays device time in seconds (what replay uses).
+Logs written before the time base (no "time_base" metadata) have publish_time and the JointStates stamp
+in device time since the start; readers use ``t`` and are unaffected.
 
 Channels:
   /furuta/tick    one per control tick: the raw SAMPLE, the SI measurement, the controller's output and
@@ -13,6 +21,8 @@ Metadata records:
   "rig"     {"name": ..., "toml": <the rig config as TOML text>, "json": <RigConfig JSON>}
   "run"     {"mode": compensation mode, "gains": "[l1,l2,l3,l4]" JSON, "rate_hz": ..., "port": ..., "version": ...}
   "device"  the HELLO_ACK fields (calibration) as strings
+  "time_base" {"clock": "wall", "device_offset_ns": ..., "device_t0_ns": ..., "wall_t0_ns": ..., "mapped_at": ...}
+            (a converted recording: {"clock": ..., "offset_ns": ...}, its own time column plus offset)
 Attachment "rig.toml" carries the same config as a file.
 
 Replay rule: for each /furuta/tick in order, build Measurement(t, theta, theta_dot, phi) from the logged SI values;
@@ -32,6 +42,7 @@ EVENTS_TOPIC = "/furuta/events"
 RIG_METADATA = "rig"
 RUN_METADATA = "run"
 DEVICE_METADATA = "device"
+TIME_BASE_METADATA = "time_base"
 RIG_ATTACHMENT = "rig.toml"
 
 _NUM = {"type": "number"}

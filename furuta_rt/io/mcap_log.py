@@ -57,6 +57,16 @@ def run_metadata(
     return out
 
 
+ABSOLUTE_AFTER_S = 315_532_800.0  # 1980-01-01 in Unix seconds: later times are taken as absolute
+
+
+def device_time_base(wall_ns: int, device_ns: int, mapped_at: str) -> dict[str, str]:
+    """The "time_base" metadata of a log whose device time ``device_ns`` was seen at wall clock ``wall_ns``:
+    every message time is ``device_ns + device_offset_ns`` (log_schema)."""
+    return {"clock": "wall", "device_offset_ns": str(wall_ns - device_ns), "device_t0_ns": str(device_ns),
+            "wall_t0_ns": str(wall_ns), "mapped_at": mapped_at, "rule": "time_ns = device_ns + device_offset_ns"}
+
+
 def _ns(seconds: float) -> int:
     return max(0, round(seconds * 1e9))
 
@@ -98,12 +108,17 @@ class LogWriter:
         self._writer = w
         self._closed = False
 
-    def tick(self, log_time: int, publish_time: int, fields: Mapping[str, Any]) -> None:
-        """One /furuta/tick message (``fields``: every key of TICK_FIELDS) and its /furuta/joint_states."""
+    def time_base(self, mapping: Mapping[str, str]) -> None:
+        """The "time_base" metadata: how the messages' times relate to the device clock (log_schema)."""
+        self._writer.add_metadata(ls.TIME_BASE_METADATA, dict(mapping))
+
+    def tick(self, time_ns: int, fields: Mapping[str, Any]) -> None:
+        """One /furuta/tick message (``fields``: every key of TICK_FIELDS) and its /furuta/joint_states, both
+        with log_time = publish_time = JointStates.timestamp = ``time_ns`` (the one time base)."""
         w = self._writer
         seq = int(fields["seq"]) & 0xFFFFFFFF
-        w.add_message(self._tick, log_time, _dumps(fields), publish_time, seq)
-        stamp = {"sec": publish_time // 1_000_000_000, "nsec": publish_time % 1_000_000_000}
+        w.add_message(self._tick, time_ns, _dumps(fields), time_ns, seq)
+        stamp = {"sec": time_ns // 1_000_000_000, "nsec": time_ns % 1_000_000_000}
         joints = {
             "timestamp": stamp,
             "joints": [
@@ -111,7 +126,7 @@ class LogWriter:
                 {"name": "phi", "position": fields["phi"], "velocity": fields["phi_dot_hat"], "effort": fields["u"]},
             ],
         }
-        w.add_message(self._joints, log_time, _dumps(joints), publish_time, seq)
+        w.add_message(self._joints, time_ns, _dumps(joints), time_ns, seq)
 
     def timing(self, log_time: int, fields: Mapping[str, Any]) -> None:
         self._writer.add_message(self._timing, log_time, _dumps(fields), log_time, int(fields["seq"]) & 0xFFFFFFFF)
@@ -193,14 +208,20 @@ def write_recording_mcap(
         converted="true", derived=",".join(derived),
     )
     t0 = float(t[0])
-    offset = -t0 if t0 < 0 else 0.0  # MCAP times are unsigned
+    # the recording's own times; a mapping that starts the recording at t = 0 gives back its start (an
+    # absolute time, e.g. Unix seconds, stays absolute); MCAP times are unsigned
+    offset = float(rec.meta.get("t_start", t0)) - t0 if isinstance(rec.meta.get("t_start"), int | float) else 0.0
+    if t0 + offset < 0:
+        offset = -t0
     with LogWriter(path, rig, run, {"calibration": "computed from the rig config"}) as w:
+        w.time_base({"clock": "the recording's time column (s) + offset_ns", "offset_ns": str(_ns(offset)),
+                     "absolute": str(t0 + offset > ABSOLUTE_AFTER_S).lower()})
         cols = (t, rec.theta, theta_dot, rec.phi, phi_dot_hat, u, u_lin, u_comp, saturated)
         prev = t0
         for k, (tk, th, thd, ph, phd, uk, ul, uc, sat) in enumerate(zip(*(c.tolist() for c in cols), strict=True)):
             a, b, c, _ = cal.to_counts(th, thd, ph)
             ns = _ns(tk + offset)
-            w.tick(ns, ns, {
+            w.tick(ns, {
                 "seq": k, "t": tk, "theta_adc": a, "theta_dot_adc": b, "phi_count": c, "status": 0,
                 "theta": th, "theta_dot": thd, "phi": ph, "phi_dot_hat": phd,
                 "u": uk, "u_lin": ul, "u_comp": uc, "saturated": bool(sat),

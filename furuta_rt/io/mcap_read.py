@@ -318,6 +318,15 @@ class LogData:
         return self.run.get("gains")
 
     @property
+    def device_offset_ns(self) -> int | None:
+        """Wall clock − device clock of the log's time base (log_schema), None for a log written before it
+        (its publish_time is device time) or one without a device clock (a converted recording)."""
+        try:
+            return int(self.metadata.get(ls.TIME_BASE_METADATA, {})["device_offset_ns"])
+        except (KeyError, ValueError):
+            return None
+
+    @property
     def converted(self) -> bool:
         """The log was converted from a recording (its u is not furuta-rt's controller output)."""
         return self.run.get("converted") == "true"

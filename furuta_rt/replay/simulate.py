@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ import numpy as np
 from firmware_protocol import StatusFlags
 from furuta_rt.config import CompMode, RigConfig
 from furuta_rt.control.controller import Controller, Measurement, design_gains
-from furuta_rt.io.mcap_log import LogWriter, run_metadata
+from furuta_rt.io.mcap_log import LogWriter, device_time_base, run_metadata
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 from furuta_rt.sim.simulator import Simulator
@@ -56,8 +57,10 @@ def simulate_log(
         effects.model_dump(exclude_none=True) if effects else {}))
     device = {k: repr(v) for k, v in dataclasses.asdict(cal).items()}  # the HELLO_ACK calibration
     state = "idle"
+    wall0 = time.time_ns()  # the simulated device clock mapped to the wall clock at the start (log_schema's time base)
     with LogWriter(path, rig, run, device) as w:
-        w.event(0, "INFO", "simulated run started")
+        w.time_base(device_time_base(wall0, 0, "the start of the simulation"))
+        w.event(wall0, "INFO", "simulated run started")
         for k in range(n):
             s = sim.sample()
             th, thd, ph = cal.to_si(s.theta_adc, s.theta_dot_adc, s.phi_count)
@@ -68,15 +71,15 @@ def simulate_log(
                 ctrl.reset(ph)
             if state == "balancing" and abs(th) > limit:
                 state = "tripped"
-                w.event(round(sim.t * 1e9), "WARNING", f"tripped: |theta| = {abs(th):.3f} > {limit}")
+                w.event(wall0 + round(sim.t * 1e9), "WARNING", f"tripped: |theta| = {abs(th):.3f} > {limit}")
             if state == "balancing":
                 out = ctrl.update(m)
                 u, u_lin, u_comp, phd, sat = out.u, out.u_lin, out.u_comp, out.phi_dot_hat, out.saturated
             else:
                 u, u_lin, u_comp, phd, sat = 0.0, 0.0, 0.0, ctrl.hold(m), False
             status = (StatusFlags.ENABLED if state == "balancing" else 0) | (StatusFlags.ADC_OVERRANGE if s.overrange else 0)
-            ns = round(sim.t * 1e9)
-            w.tick(ns, ns, {
+            ns = wall0 + round(sim.t * 1e9)
+            w.tick(ns, {
                 "seq": k, "t": sim.t, "theta_adc": s.theta_adc, "theta_dot_adc": s.theta_dot_adc,
                 "phi_count": s.phi_count, "status": int(status), "theta": th, "theta_dot": thd, "phi": ph,
                 "phi_dot_hat": phd, "u": u, "u_lin": u_lin, "u_comp": u_comp, "saturated": sat,

@@ -29,7 +29,7 @@ from typing import Any
 from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
 from furuta_rt.io.log_schema import TICK_FIELDS, TIMING_FIELDS
-from furuta_rt.io.mcap_log import LogWriter
+from furuta_rt.io.mcap_log import LogWriter, device_time_base
 from furuta_rt.runtime.records import STATE_NAMES, TICK_RECORD
 
 _IDX = {name: i for i, name in enumerate(TICK_RECORD)}
@@ -59,6 +59,7 @@ class TickLog:
         self.writer: LogWriter | None = None
         self._early: list[tuple[int, str, str]] = []
         self.ticks = 0
+        self.device_offset_ns: int | None = None  # the time base: set at the first tick
 
     def open(self, device: dict[str, str], run: dict[str, str] | None = None) -> None:
         """Create the file with its metadata (``run`` replaces the setup's, when given)."""
@@ -74,13 +75,23 @@ class TickLog:
     def write_ticks(self, batch: list[tuple]) -> None:
         w = self.writer
         assert w is not None
+        if not batch:
+            return
         mode = self.mode
+        if self.device_offset_ns is None:
+            # the device clock → wall clock map, fixed at the start of streaming (the handshake): the least
+            # delayed SAMPLE of the first batch (~0.1 s) sets it, as furuta_rt.runtime.timing.DeviceClock does
+            first = min(batch, key=lambda r: r[_WALL] - r[_DEV])
+            self.device_offset_ns = first[_WALL] - first[_DEV]
+            w.time_base(device_time_base(first[_WALL], first[_DEV], "the least delayed SAMPLE of the first batch (0.1 s)"))
+        offset = self.device_offset_ns
         for rec in batch:
             tick = {k: rec[i] for k, i in _TICK_KEYS}  # in TICK_FIELDS order
             tick["state"] = STATE_NAMES[rec[_STATE]]
             tick["mode"] = mode
-            w.tick(rec[_WALL], rec[_DEV], tick)
-            w.timing(rec[_WALL], {k: rec[i] for k, i in _TIMING_KEYS})
+            ns = rec[_DEV] + offset
+            w.tick(ns, tick)
+            w.timing(ns, {k: rec[i] for k, i in _TIMING_KEYS})
         self.ticks += len(batch)
 
     def event(self, wall_ns: int, level: str, message: str) -> None:
