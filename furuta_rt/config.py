@@ -117,6 +117,10 @@ class SensorConfig(_Section):
     theta_dot_rad_s_per_count: Positive = 100.0 / 65536.0
     theta_noise: NonNegative = Field(default=2e-4, description="white noise std at the θ ADC, rad")
     theta_dot_noise: NonNegative = Field(default=2e-3, description="white noise std at the θ̇ ADC, rad/s")
+    theta_wraps: bool = Field(
+        default=False, description="θ's sensor reads the full turn and the DAQ reports θ modulo its range (an "
+        "encoder, a 360° angle sensor); false: the θ ADC saturates at its rail with ADC_OVERRANGE"
+    )
 
     @field_validator("bessel_cutoff", mode="before")
     @classmethod
@@ -197,6 +201,30 @@ class SafetyConfig(_Section):
     max_consecutive_overruns: Annotated[int, Field(ge=1)] = 5
 
 
+class SwingUpConfig(_Section):
+    """Energy swing-up from hanging (Åström & Furuta 2000) and the catch into balancing (furuta_rt.control.swingup).
+    A key left out (None) is derived from the model there."""
+
+    enabled: bool = Field(default=False, description="swing up from hanging before balancing (run --swing-up)")
+    accel_max: Positive | None = Field(default=None, description="arm acceleration of the energy pump, rad/s²")
+    energy_gain: Positive | None = Field(default=None, description="arm acceleration per J of missing energy, rad/s² per J")
+    energy_margin: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
+        default=0.02, description="energy aimed at above the upright one, as a fraction of 2ε (friction losses)")
+    arm_omega: Positive | None = Field(default=None, description="natural frequency of the arm centring, rad/s")
+    arm_damping: Positive | None = Field(default=None, description="arm acceleration per arm speed, 1/s")
+    catch_theta: Positive | None = Field(default=None, description="|θ| below which balancing takes over, rad")
+    catch_energy: Positive = Field(default=0.1, description="|E − E_up| below which balancing takes over, × 2ε")
+    fall_theta: Positive | None = Field(default=None, description="|θ| beyond which balancing has lost it, rad "
+                                        "(default safety.theta_limit)")
+    arm_return_s: Positive = Field(default=2.0, description="after the catch, the arm's reference goes from where "
+                                   "it was caught back to 0 with this time constant, s")
+    on_fall: Literal["swing_up", "trip"] = Field(default="swing_up", description="after a fall: swing up again or trip")
+    calibration_s: Annotated[float, Field(gt=0.0, le=10.0)] = Field(
+        default=1.0, description="seconds the pendulum must hang still for the start-up calibration")
+    still_theta: Positive = Field(default=0.02, description="largest θ spread over the calibration window, rad")
+    hanging_tolerance: Positive = Field(default=0.3, description="largest distance of the hanging reading from π, rad")
+
+
 class RigConfig(_Section):
     name: str = "thesis"
     description: str = ""
@@ -207,6 +235,7 @@ class RigConfig(_Section):
     compensation: CompensationConfig = CompensationConfig()
     observer: ObserverConfig = ObserverConfig()
     safety: SafetyConfig = SafetyConfig()
+    swing_up: SwingUpConfig = SwingUpConfig()
     effects: Effects = Effects()
 
     def lumped(self) -> LumpedParameters:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -204,7 +205,10 @@ def test_status_at_least_once_per_second():
 
 
 def test_overrange_latches_adc_fault_when_the_pendulum_falls():
+    """A ±π θ sensor (sensors.theta_wraps = false) saturates at its rail."""
     b = Bench(rate=500, initial_theta=0.3)
+    rig = b.fw.rig.model_copy(update={"sensors": b.fw.rig.sensors.model_copy(update={"theta_wraps": False})})
+    b.fw = Firmware(rig, RigModel.from_config(rig), b.fw.settings, 500)
     b.hello()
     got = []
     for _ in range(1000):
@@ -213,6 +217,21 @@ def test_overrange_latches_adc_fault_when_the_pendulum_falls():
             break
     first = next(s for s in samples(got) if s.status & StatusFlags.ADC_OVERRANGE)
     assert first.theta_adc == 32767  # θ reached π: the ADC rail
+
+
+def test_full_turn_theta_sensor_wraps_through_pi_without_overrange():
+    """The thesis rig's θ sensor reads the full turn (sensors.theta_wraps): the fallen pendulum swings through π with
+    θ's counts wrapping from +32767 to −32768, no ADC_OVERRANGE."""
+    b = Bench(rate=500, initial_theta=0.3)
+    b.hello()
+    got = []
+    for _ in range(1000):
+        got += b.tick()
+    s = samples(got)
+    assert not any(x.status & StatusFlags.ADC_OVERRANGE for x in s)
+    counts = [x.theta_adc for x in s]
+    jumps = [b - a for a, b in itertools.pairwise(counts) if abs(b - a) > 30000]
+    assert jumps and all(abs(abs(j) - 65536) < 2000 for j in jumps)  # wraps by one turn, not a glitch
 
 
 def test_firmware_reproduces_closed_loop_simulation():

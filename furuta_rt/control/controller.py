@@ -8,11 +8,17 @@ One call of ``Controller.update`` per tick (read → **update** → write):
     u    = sat(u_lin + F̂)
     observer predicted with the net torque u − F̂ that reaches the arm after the command delay
 
-Everything is scalar Python on floats: no allocation, no numpy on the hot path.
+With a swing-up (``rig.swing_up.enabled``, furuta_rt.control.swingup) the same ``update`` starts in
+swinging-up mode: the energy pump replaces u_lin until the catch region, balancing takes over there (the observer
+has tracked throughout, its φ set from the measurement; the compensator runs on), and a fall hands back. The
+observer then sees the gravity coupling at θ as sin θ cos θ (θ near upright, exact at hanging).
+
+Everything is scalar Python on floats: no allocation, no numpy on the hot path (the swing-up's energy aside).
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -28,6 +34,7 @@ from furuta_rt.control.design import (
     target_poles,
 )
 from furuta_rt.control.observer import ArmObserver, ArmObserverDesign
+from furuta_rt.control.swingup import SwingUp, SwingUpDesign, wrap_angle
 from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.sensors import Measurement
 
@@ -39,6 +46,7 @@ class ControlOutput:
     u_comp: float
     phi_dot_hat: float
     saturated: bool
+    swinging: bool = False  # the command came from the swing-up (not from balancing)
 
 
 def design_gains(rig: RigConfig) -> np.ndarray:
@@ -73,6 +81,7 @@ class Controller:
         u_limit: float | None,
         command_delay_ticks: int = 1,
         command_per_torque: float = 1.0,
+        swing_up: SwingUp | None = None,
     ) -> None:
         """``command_per_torque`` converts the compensator's torque (N m) into command units
         (1 for a torque actuator, R/Kt volts per N m for a DC motor)."""
@@ -84,6 +93,15 @@ class Controller:
         self._pending: deque[float] = deque([0.0] * command_delay_ticks)
         self._delay = command_delay_ticks
         self._started = False
+        self.swing_up = swing_up
+        self.swinging = swing_up is not None
+        self.phi_ref = 0.0  # after a catch: the arm's reference, from where it was caught back to 0
+        self._ref_decay = 1.0
+        self._ref_rate = 0.0
+        if swing_up is not None:
+            d = swing_up.design
+            self._ref_decay = math.exp(-d.period / d.arm_return_s)
+            self._ref_rate = 1.0 / d.arm_return_s
 
     @classmethod
     def from_rig(
@@ -97,6 +115,7 @@ class Controller:
             u_limit=rig.actuator.limit,
             command_delay_ticks=rig.control.command_delay_ticks,
             command_per_torque=1.0 if rig.actuator.kind == "torque" else rig.actuator.R / rig.actuator.Kt,  # type: ignore[operator]
+            swing_up=SwingUp(SwingUpDesign.from_rig(rig)) if rig.swing_up.enabled else None,
         )
 
     @property
@@ -121,13 +140,38 @@ class Controller:
         for i in range(len(self._pending)):
             self._pending[i] = 0.0
         self._started = True
+        self.phi_ref = 0.0
+        if self.swing_up is not None:
+            self.swing_up.reset()
+            self.swinging = True
+
+    def _observer_theta(self, theta: float) -> float:
+        """θ as the observer's gravity coupling sees it: θ balancing, sin θ cos θ with a swing-up (eq. 4's term)."""
+        return theta if self.swing_up is None else math.sin(theta) * math.cos(theta)
 
     def update(self, m: Measurement) -> ControlOutput:
         if not self._started:
             self.reset(m.phi)
         obs = self.observer
+        su = self.swing_up
+        if su is not None:
+            if not -math.pi <= m.theta < math.pi:  # an encoder θ counts turns; the laws want upright at 0
+                m = Measurement(m.t, wrap_angle(m.theta), m.theta_dot, m.phi)
+            if self.swinging and su.catchable(m.theta, m.theta_dot):
+                self.swinging = False
+                obs.reset(m.phi, obs.phi_dot)  # bumpless: φ from the measurement, φ̂̇ as tracked
+                self.phi_ref = m.phi  # the arm is taken back to 0 from where it was caught
+            elif not self.swinging and su.fallen(m.theta):
+                self.swinging = True
+                su.reset()
         phi_dot = obs.correct(m.phi)
-        u_lin = self.l1 * m.theta + self.l2 * m.theta_dot + self.l3 * m.phi + self.l4 * phi_dot
+        if self.swinging:
+            u_lin = su.command(m.theta, m.theta_dot, m.phi, phi_dot)  # type: ignore[union-attr]
+        else:
+            ref = self.phi_ref
+            u_lin = (self.l1 * m.theta + self.l2 * m.theta_dot + self.l3 * (m.phi - ref)
+                     + self.l4 * (phi_dot + ref * self._ref_rate))
+            self.phi_ref = ref * self._ref_decay
         u_comp = self.compensator(phi_dot, u_lin / self.command_per_torque) * self.command_per_torque
         u = u_lin + u_comp
         lim = self.u_limit
@@ -141,8 +185,9 @@ class Controller:
             applied = self._pending.popleft()
         else:
             applied = u - u_comp
-        obs.predict(m.theta, applied)
-        return ControlOutput(u=u, u_lin=u_lin, u_comp=u_comp, phi_dot_hat=phi_dot, saturated=saturated)
+        obs.predict(m.theta if su is None else self._observer_theta(m.theta), applied)
+        return ControlOutput(u=u, u_lin=u_lin, u_comp=u_comp, phi_dot_hat=phi_dot, saturated=saturated,
+                             swinging=self.swinging)
 
     def hold(self, m: Measurement) -> float:
         """Track the measurement without commanding (idle/tripped): keeps the observer converged.
@@ -155,5 +200,5 @@ class Controller:
             applied = self._pending.popleft()
         else:
             applied = 0.0
-        self.observer.predict(m.theta, applied)
+        self.observer.predict(self._observer_theta(m.theta), applied)
         return phi_dot

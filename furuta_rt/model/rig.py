@@ -93,4 +93,5 @@ def calibration_from_config(rig: RigConfig) -> Calibration:
         theta_rad_per_count=s.theta_rad_per_count,
         theta_dot_rad_s_per_count=s.theta_dot_rad_s_per_count,
         phi_counts_per_rev=s.encoder_counts_per_rev,
+        theta_wraps=s.theta_wraps,
     )

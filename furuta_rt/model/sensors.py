@@ -86,6 +86,7 @@ class Calibration:
     theta_dot_rad_s_per_count: float = 100.0 / 65536.0
     phi_counts_per_rev: int = 4096
     adc_bits: int = 16
+    theta_wraps: bool = False  # the θ channel wraps modulo its range (a full-turn sensor) instead of saturating
 
     def __post_init__(self) -> None:
         if self.theta_rad_per_count <= 0 or self.theta_dot_rad_s_per_count <= 0:
@@ -123,6 +124,11 @@ class Calibration:
 
     def to_counts(self, theta_f: float, theta_dot_f: float, phi: float) -> tuple[int, int, int, bool]:
         """(θ, θ̇, φ counts, overrange) as the DAQ would read them."""
-        t, o1 = self.quantize_adc(theta_f, self.theta_rad_per_count)
+        if self.theta_wraps:
+            span = 1 << self.adc_bits
+            t = (int(count_of(theta_f, self.theta_rad_per_count)) - self.adc_min) % span + self.adc_min
+            o1 = False
+        else:
+            t, o1 = self.quantize_adc(theta_f, self.theta_rad_per_count)
         td, o2 = self.quantize_adc(theta_dot_f, self.theta_dot_rad_s_per_count)
         return t + self.theta_offset_counts, td, int(count_of(phi, self.phi_rad_per_count)), o1 or o2
