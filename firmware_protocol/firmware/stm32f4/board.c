@@ -1,0 +1,265 @@
+/*
+ * board.c - the firmware core on an STM32F401 (Black Pill / Nucleo-F401RE), register level.
+ *
+ *   TIM5 update IRQ  the device tick at rate_hz: start the θ/θ̇ conversions, feed the bytes USART2
+ *                    received to the core, fw_tick (SAMPLE out, COMMAND applied), refresh the IWDG;
+ *                    a period that elapsed during the tick is reported as an overrun (fw_skip)
+ *   USART2 IRQ       higher priority: received bytes into rx_ring, tx_ring out (1 Mbaud, 8N1)
+ *   TIM2             quadrature encoder (PA0 = A, PA1 = B), 32-bit count
+ *   ADC1 injected    θ on PA4 (IN4), θ̇ on PB0 (IN8), 12 bit, started by software at the tick
+ *   TIM3 CH1         PWM on PA6 at 20 kHz, direction on PA7
+ *   IWDG             50 ms: a hung firmware resets, and reset leaves the PWM pin an input (zero drive)
+ *
+ * Only the tick touches the core (fw_t), so it needs no locks. No floating point anywhere here.
+ */
+#include <stdint.h>
+
+#include "board_config.h"
+#include "fw_core.h"
+#include "regs.h"
+#include "ring.h"
+
+#define PWM_TOP (BOARD_TIMER_HZ / BOARD_PWM_HZ) /* 4200 timer counts per PWM period */
+#define PIN_DIR 7u                              /* PA7 */
+
+struct fw_hal {
+    ring_t rx, tx;
+    uint32_t rx_overflows;
+    uint32_t tick_cycles_max; /* worst tick in CPU cycles (DWT), for a debugger: FIRMWARE.md */
+};
+
+static fw_hal_t hal;
+static fw_t fw;
+static const fw_board_t board = {
+    0u, /* device_id: from the MCU's unique id at start-up, see main() */
+    BOARD_DEFAULT_RATE_HZ,
+    BOARD_MAX_RATE_HZ,
+    BOARD_WATCHDOG_MS,
+    BOARD_THETA_RAD_PER_COUNT,
+    BOARD_THETA_OFFSET_COUNTS,
+    BOARD_THETA_DOT_RAD_S_PER_COUNT,
+    BOARD_THETA_DOT_OFFSET_COUNTS,
+    BOARD_PHI_COUNTS_PER_REV,
+    BOARD_ACTUATOR_FULL_SCALE,
+    BOARD_ACTUATOR_KIND,
+    BOARD_ADC_MIN, /* the rails of the readings, whatever the offsets */
+    BOARD_ADC_MAX,
+    BOARD_ADC_MIN,
+    BOARD_ADC_MAX,
+};
+static fw_board_t board_with_id;
+
+void TIM5_IRQHandler(void);
+void USART2_IRQHandler(void);
+int main(void);
+
+/* ---- HAL ------------------------------------------------------------------------------------ */
+
+int32_t hal_encoder_count(fw_hal_t *h)
+{
+    (void)h;
+    return (int32_t)TIM_CNT(TIM2_BASE);
+}
+
+uint8_t hal_encoder_fault(fw_hal_t *h)
+{
+    (void)h;
+    return 0u; /* TIM encoder mode does not flag illegal transitions */
+}
+
+static int16_t adc_counts(uint32_t dr) { return (int16_t)((int32_t)(dr & 0xFFFu) - 2048); }
+
+int16_t hal_adc_theta(fw_hal_t *h)
+{
+    (void)h;
+    while (!(ADC1_SR & ADC_SR_JEOC)) { /* started at the top of the tick: ~6 µs for both */
+    }
+    return adc_counts(ADC1_JDR1);
+}
+
+int16_t hal_adc_theta_dot(fw_hal_t *h)
+{
+    (void)h;
+    return adc_counts(ADC1_JDR2);
+}
+
+void hal_actuator_write(fw_hal_t *h, int16_t counts)
+{
+    uint32_t mag = (uint32_t)(counts < 0 ? -(int32_t)counts : (int32_t)counts);
+    (void)h;
+    GPIO_BSRR(GPIOA_BASE) = counts > 0 ? (1u << PIN_DIR) : (1u << (PIN_DIR + 16u));
+    TIM_CCR1(TIM3_BASE) = mag * PWM_TOP / 32767u;
+}
+
+uint8_t hal_uart_write(fw_hal_t *h, const uint8_t *data, size_t len)
+{
+    if (!ring_put_all(&h->tx, data, len)) {
+        return 0u;
+    }
+    USART2_CR1 |= USART_CR1_TXEIE; /* the USART interrupt sends it */
+    return 1u;
+}
+
+void hal_tick_rate(fw_hal_t *h, uint16_t rate_hz)
+{
+    (void)h;
+    TIM_ARR(TIM5_BASE) = BOARD_TIMER_HZ / rate_hz - 1u;
+}
+
+void hal_session_started(fw_hal_t *h, uint8_t new_session)
+{
+    (void)h;
+    (void)new_session;
+}
+
+/* ---- interrupts ------------------------------------------------------------------------------ */
+
+void TIM5_IRQHandler(void)
+{
+    uint32_t t0 = DWT_CYCCNT;
+    uint32_t cycles;
+    int byte;
+    TIM_SR(TIM5_BASE) = ~TIM_SR_UIF;
+    ADC1_SR = 0u;
+    ADC1_CR2 |= ADC_CR2_JSWSTART; /* θ and θ̇ convert while the received bytes are decoded */
+    while ((byte = ring_get(&hal.rx)) >= 0) {
+        fw_rx_byte(&fw, (uint8_t)byte);
+    }
+    fw_tick(&fw);
+    IWDG_KR = 0xAAAAu;
+    if (TIM_SR(TIM5_BASE) & TIM_SR_UIF) { /* a whole period went by during this tick */
+        TIM_SR(TIM5_BASE) = ~TIM_SR_UIF;
+        fw_skip(&fw, 1u);
+    }
+    cycles = DWT_CYCCNT - t0;
+    if (cycles > hal.tick_cycles_max) {
+        hal.tick_cycles_max = cycles;
+    }
+}
+
+void USART2_IRQHandler(void)
+{
+    uint32_t sr = USART2_SR;
+    if (sr & (USART_SR_RXNE | USART_SR_ORE)) {
+        uint8_t byte = (uint8_t)USART2_DR; /* also clears ORE */
+        if (!ring_put(&hal.rx, byte)) {
+            hal.rx_overflows++;
+        }
+    }
+    if ((sr & USART_SR_TXE) && (USART2_CR1 & USART_CR1_TXEIE)) {
+        int byte = ring_get(&hal.tx);
+        if (byte < 0) {
+            USART2_CR1 &= ~USART_CR1_TXEIE;
+        } else {
+            USART2_DR = (uint32_t)byte;
+        }
+    }
+}
+
+/* ---- set-up ---------------------------------------------------------------------------------- */
+
+static void clock_84mhz_from_hsi(void)
+{
+    RCC_CR |= RCC_CR_HSION;
+    while (!(RCC_CR & RCC_CR_HSIRDY)) {
+    }
+    FLASH_ACR = FLASH_ACR_2WS_CACHES;
+    /* HSI 16 MHz / M 16 * N 336 / P 4 = 84 MHz; Q 7 -> 48 MHz */
+    RCC_PLLCFGR = 16u | (336u << 6) | (1u << 16) | (7u << 24);
+    RCC_CR |= RCC_CR_PLLON;
+    while (!(RCC_CR & RCC_CR_PLLRDY)) {
+    }
+    RCC_CFGR = RCC_CFGR_PPRE1_DIV2 | RCC_CFGR_SW_PLL;
+    while ((RCC_CFGR & (3u << 2)) != RCC_CFGR_SWS_PLL) {
+    }
+}
+
+static void pin_mode(uint32_t port, uint32_t pin, uint32_t mode, uint32_t af)
+{
+    GPIO_MODER(port) = (GPIO_MODER(port) & ~(3u << (2u * pin))) | (mode << (2u * pin));
+    if (mode == GPIO_MODE_AF) {
+        GPIO_AFRL(port) = (GPIO_AFRL(port) & ~(15u << (4u * pin))) | (af << (4u * pin));
+        GPIO_OSPEEDR(port) |= 2u << (2u * pin);
+    }
+}
+
+static void peripherals(void)
+{
+    RCC_AHB1ENR |= RCC_AHB1ENR_GPIOA | RCC_AHB1ENR_GPIOB;
+    RCC_APB1ENR |= RCC_APB1ENR_TIM2 | RCC_APB1ENR_TIM3 | RCC_APB1ENR_TIM5 | RCC_APB1ENR_USART2;
+    RCC_APB2ENR |= RCC_APB2ENR_ADC1;
+
+    /* actuator first: direction low, PWM 0 */
+    GPIO_BSRR(GPIOA_BASE) = 1u << (PIN_DIR + 16u);
+    pin_mode(GPIOA_BASE, PIN_DIR, GPIO_MODE_OUT, 0u);
+    TIM_PSC(TIM3_BASE) = 0u;
+    TIM_ARR(TIM3_BASE) = PWM_TOP - 1u;
+    TIM_CCR1(TIM3_BASE) = 0u;
+    TIM_CCMR1(TIM3_BASE) = (6u << 4) | (1u << 3); /* OC1: PWM mode 1, preload */
+    TIM_CCER(TIM3_BASE) = 1u;                     /* CC1E */
+    TIM_EGR(TIM3_BASE) = TIM_EGR_UG;
+    TIM_CR1(TIM3_BASE) = TIM_CR1_ARPE | TIM_CR1_CEN;
+    pin_mode(GPIOA_BASE, 6u, GPIO_MODE_AF, 2u); /* PA6 = TIM3_CH1 */
+
+    /* encoder: TIM2 encoder mode 3 (both edges of both channels), input filter 8 samples */
+    GPIO_PUPDR(GPIOA_BASE) |= (1u << 0) | (1u << 2); /* pull-ups on PA0, PA1 (open-collector encoders) */
+    pin_mode(GPIOA_BASE, 0u, GPIO_MODE_AF, 1u);
+    pin_mode(GPIOA_BASE, 1u, GPIO_MODE_AF, 1u);
+    TIM_CCMR1(TIM2_BASE) = 1u | (3u << 4) | (1u << 8) | (3u << 12); /* CC1S = TI1, CC2S = TI2, IC1F = IC2F = 3 */
+    TIM_SMCR(TIM2_BASE) = 3u;                                       /* SMS = encoder mode 3 */
+    TIM_ARR(TIM2_BASE) = 0xFFFFFFFFu;
+    TIM_CR1(TIM2_BASE) = TIM_CR1_CEN;
+
+    /* ADC1: injected sequence IN4 (θ) then IN8 (θ̇), 56-cycle sampling, ADC clock 84 / 4 = 21 MHz */
+    pin_mode(GPIOA_BASE, 4u, GPIO_MODE_ANALOG, 0u);
+    pin_mode(GPIOB_BASE, 0u, GPIO_MODE_ANALOG, 0u);
+    ADC_CCR = 1u << 16;
+    ADC1_SMPR2 = (3u << (3u * 4u)) | (3u << (3u * 8u));
+    ADC1_CR1 = ADC_CR1_SCAN;
+    ADC1_JSQR = (1u << 20) | (4u << 10) | (8u << 15); /* JL = 1 (two), JSQ3 = 4, JSQ4 = 8 */
+    ADC1_CR2 = ADC_CR2_ADON;
+
+    /* USART2 on PA2 (TX) / PA3 (RX): the Nucleo's ST-LINK virtual COM port */
+    pin_mode(GPIOA_BASE, 2u, GPIO_MODE_AF, 7u);
+    pin_mode(GPIOA_BASE, 3u, GPIO_MODE_AF, 7u);
+    USART2_BRR = (BOARD_SYSCLK_HZ / 2u + BOARD_UART_BAUD / 2u) / BOARD_UART_BAUD;
+    USART2_CR1 = USART_CR1_UE | USART_CR1_TE | USART_CR1_RE | USART_CR1_RXNEIE;
+
+    /* the tick: TIM5 update at the default rate (fw_init calls hal_tick_rate) */
+    TIM_PSC(TIM5_BASE) = 0u;
+    TIM_DIER(TIM5_BASE) = TIM_DIER_UIE;
+    NVIC_IPR8(IRQ_USART2) = 0x40u; /* bytes must not wait for a tick */
+    NVIC_IPR8(IRQ_TIM5) = 0x80u;
+    NVIC_ISER(IRQ_USART2 / 32u) = 1u << (IRQ_USART2 % 32u);
+    NVIC_ISER(IRQ_TIM5 / 32u) = 1u << (IRQ_TIM5 % 32u);
+
+    /* cycle counter for tick_cycles_max */
+    DEMCR |= 1u << 24;
+    DWT_CYCCNT = 0u;
+    DWT_CTRL |= 1u;
+}
+
+static void hardware_watchdog(void)
+{
+    IWDG_KR = 0xCCCCu; /* start; LSI ~32 kHz / 32 = ~1 kHz */
+    IWDG_KR = 0x5555u;
+    IWDG_PR = 3u;
+    IWDG_RLR = BOARD_IWDG_MS;
+    IWDG_KR = 0xAAAAu;
+}
+
+int main(void)
+{
+    clock_84mhz_from_hsi();
+    board_with_id = board;
+    board_with_id.device_id = REG32(UID_BASE) ^ REG32(UID_BASE + 4u) ^ REG32(UID_BASE + 8u);
+    peripherals();
+    fw_init(&fw, &board_with_id, &hal);
+    hardware_watchdog();
+    TIM_EGR(TIM5_BASE) = TIM_EGR_UG;
+    TIM_SR(TIM5_BASE) = 0u;
+    TIM_CR1(TIM5_BASE) = TIM_CR1_CEN;
+    for (;;) {
+        __asm__ volatile("wfi");
+    }
+}

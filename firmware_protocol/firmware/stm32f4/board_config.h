@@ -1,0 +1,33 @@
+/*
+ * board_config.h - what this rig's DAQ reports in HELLO_ACK and the limits it enforces. Edit the
+ * calibration for your sensors (FIRMWARE.md, "Calibration"); everything else follows from it.
+ */
+#ifndef BOARD_CONFIG_H
+#define BOARD_CONFIG_H
+
+#define BOARD_SYSCLK_HZ 84000000u  /* HSI 16 MHz -> PLL; APB1 42 MHz (timers 84 MHz), APB2 84 MHz */
+#define BOARD_TIMER_HZ 84000000u   /* TIM2/3/5 kernel clock */
+#define BOARD_UART_BAUD 1000000u   /* furuta-rt run --baud default */
+#define BOARD_PWM_HZ 20000u        /* motor driver PWM, above hearing */
+#define BOARD_DEFAULT_RATE_HZ 500u /* the thesis rig's loop; the host's CONFIG sets its own */
+#define BOARD_MAX_RATE_HZ 2000u    /* SAMPLE 23 B + STATUS at 1 Mbaud: 2 kHz keeps the UART under 50 % */
+#define BOARD_WATCHDOG_MS 20u
+#define BOARD_IWDG_MS 50u          /* hardware watchdog: a hung firmware resets, and reset is zero drive */
+
+/* θ: an analog absolute angle sensor (e.g. AS5600's analog output, 0..3.3 V over one turn) on PA4;
+ * counts are the 12-bit ADC reading minus 2048 (mid-scale), so the rails are -2048 and +2047. */
+#define BOARD_THETA_RAD_PER_COUNT 0.0015339808f /* 2 pi / 4096 */
+#define BOARD_THETA_OFFSET_COUNTS 0             /* counts at theta = 0 (upright): calibrate */
+/* θ̇: an analog differentiator (or tacho) on PB0, 0 rad/s at mid-scale. */
+#define BOARD_THETA_DOT_RAD_S_PER_COUNT 0.01f /* +-20 rad/s over the ADC range */
+#define BOARD_THETA_DOT_OFFSET_COUNTS 0
+/* φ: quadrature encoder on TIM2 (PA0 = A, PA1 = B), x4: a 500-line encoder gives 2000 counts. */
+#define BOARD_PHI_COUNTS_PER_REV 2000u
+/* Actuator: PWM + direction into an H-bridge; full scale = the bridge's supply voltage. */
+#define BOARD_ACTUATOR_FULL_SCALE 12.0f
+#define BOARD_ACTUATOR_KIND FP_ACT_VOLTAGE_V
+
+#define BOARD_ADC_MIN (-2048)
+#define BOARD_ADC_MAX 2047
+
+#endif /* BOARD_CONFIG_H */

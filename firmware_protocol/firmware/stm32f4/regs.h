@@ -1,0 +1,119 @@
+/*
+ * regs.h - the few STM32F401 registers the port uses (RM0368), written out so the build needs no
+ * vendor SDK. Addresses and bit positions are those of the STM32F401xB/C/D/E; the F411 shares them.
+ */
+#ifndef REGS_H
+#define REGS_H
+
+#include <stdint.h>
+
+#define REG32(addr) (*(volatile uint32_t *)(uintptr_t)(addr))
+
+/* RCC, FLASH */
+#define RCC_BASE 0x40023800u
+#define RCC_CR REG32(RCC_BASE + 0x00u)
+#define RCC_PLLCFGR REG32(RCC_BASE + 0x04u)
+#define RCC_CFGR REG32(RCC_BASE + 0x08u)
+#define RCC_AHB1ENR REG32(RCC_BASE + 0x30u)
+#define RCC_APB1ENR REG32(RCC_BASE + 0x40u)
+#define RCC_APB2ENR REG32(RCC_BASE + 0x44u)
+#define RCC_CR_HSION (1u << 0)
+#define RCC_CR_HSIRDY (1u << 1)
+#define RCC_CR_PLLON (1u << 24)
+#define RCC_CR_PLLRDY (1u << 25)
+#define RCC_CFGR_SW_PLL 2u
+#define RCC_CFGR_SWS_PLL (2u << 2)
+#define RCC_CFGR_PPRE1_DIV2 (4u << 10)
+#define RCC_AHB1ENR_GPIOA (1u << 0)
+#define RCC_AHB1ENR_GPIOB (1u << 1)
+#define RCC_APB1ENR_TIM2 (1u << 0)
+#define RCC_APB1ENR_TIM3 (1u << 1)
+#define RCC_APB1ENR_TIM5 (1u << 3)
+#define RCC_APB1ENR_USART2 (1u << 17)
+#define RCC_APB2ENR_ADC1 (1u << 8)
+#define FLASH_ACR REG32(0x40023C00u)
+#define FLASH_ACR_2WS_CACHES (2u | (1u << 8) | (1u << 9) | (1u << 10)) /* latency 2, prefetch, I and D cache */
+
+/* GPIO */
+#define GPIOA_BASE 0x40020000u
+#define GPIOB_BASE 0x40020400u
+#define GPIO_MODER(b) REG32((b) + 0x00u)
+#define GPIO_OSPEEDR(b) REG32((b) + 0x08u)
+#define GPIO_PUPDR(b) REG32((b) + 0x0Cu)
+#define GPIO_BSRR(b) REG32((b) + 0x18u)
+#define GPIO_AFRL(b) REG32((b) + 0x20u)
+#define GPIO_MODE_OUT 1u
+#define GPIO_MODE_AF 2u
+#define GPIO_MODE_ANALOG 3u
+
+/* general-purpose timers TIM2 (32-bit), TIM3 (16-bit), TIM5 (32-bit) */
+#define TIM2_BASE 0x40000000u
+#define TIM3_BASE 0x40000400u
+#define TIM5_BASE 0x40000C00u
+#define TIM_CR1(b) REG32((b) + 0x00u)
+#define TIM_SMCR(b) REG32((b) + 0x08u)
+#define TIM_DIER(b) REG32((b) + 0x0Cu)
+#define TIM_SR(b) REG32((b) + 0x10u)
+#define TIM_EGR(b) REG32((b) + 0x14u)
+#define TIM_CCMR1(b) REG32((b) + 0x18u)
+#define TIM_CCER(b) REG32((b) + 0x20u)
+#define TIM_CNT(b) REG32((b) + 0x24u)
+#define TIM_PSC(b) REG32((b) + 0x28u)
+#define TIM_ARR(b) REG32((b) + 0x2Cu)
+#define TIM_CCR1(b) REG32((b) + 0x34u)
+#define TIM_CR1_CEN (1u << 0)
+#define TIM_CR1_ARPE (1u << 7)
+#define TIM_DIER_UIE (1u << 0)
+#define TIM_SR_UIF (1u << 0)
+#define TIM_EGR_UG (1u << 0)
+
+/* ADC1 and the ADC common registers */
+#define ADC1_BASE 0x40012000u
+#define ADC1_SR REG32(ADC1_BASE + 0x00u)
+#define ADC1_CR1 REG32(ADC1_BASE + 0x04u)
+#define ADC1_CR2 REG32(ADC1_BASE + 0x08u)
+#define ADC1_SMPR2 REG32(ADC1_BASE + 0x10u)
+#define ADC1_JSQR REG32(ADC1_BASE + 0x38u)
+#define ADC1_JDR1 REG32(ADC1_BASE + 0x3Cu)
+#define ADC1_JDR2 REG32(ADC1_BASE + 0x40u)
+#define ADC_CCR REG32(0x40012304u)
+#define ADC_SR_JEOC (1u << 2)
+#define ADC_CR1_SCAN (1u << 8)
+#define ADC_CR2_ADON (1u << 0)
+#define ADC_CR2_JSWSTART (1u << 22)
+
+/* USART2 */
+#define USART2_BASE 0x40004400u
+#define USART2_SR REG32(USART2_BASE + 0x00u)
+#define USART2_DR REG32(USART2_BASE + 0x04u)
+#define USART2_BRR REG32(USART2_BASE + 0x08u)
+#define USART2_CR1 REG32(USART2_BASE + 0x0Cu)
+#define USART_SR_ORE (1u << 3)
+#define USART_SR_RXNE (1u << 5)
+#define USART_SR_TXE (1u << 7)
+#define USART_CR1_RE (1u << 2)
+#define USART_CR1_TE (1u << 3)
+#define USART_CR1_RXNEIE (1u << 5)
+#define USART_CR1_TXEIE (1u << 7)
+#define USART_CR1_UE (1u << 13)
+
+/* independent watchdog */
+#define IWDG_KR REG32(0x40003000u)
+#define IWDG_PR REG32(0x40003004u)
+#define IWDG_RLR REG32(0x40003008u)
+
+/* core: NVIC, DWT cycle counter, unique id */
+#define NVIC_ISER(n) REG32(0xE000E100u + 4u * (n))
+#define NVIC_IPR8(irq) (*(volatile uint8_t *)(uintptr_t)(0xE000E400u + (irq)))
+#define DEMCR REG32(0xE000EDFCu)
+#define DWT_CTRL REG32(0xE0001000u)
+#define DWT_CYCCNT REG32(0xE0001004u)
+#define UID_BASE 0x1FFF7A10u
+
+#define IRQ_TIM2 28u
+#define IRQ_TIM3 29u
+#define IRQ_USART2 38u
+#define IRQ_TIM5 50u
+#define IRQ_COUNT 86u /* F401: positions 0..85 (SPI4 = 84, 85 reserved) */
+
+#endif /* REGS_H */
