@@ -144,6 +144,17 @@ def test_arm_friction_limit_cycle_and_matched_coulomb_compensation(tmp_path: Pat
     assert abs(f_hil - f_sim) < 0.1 and ph0 == pytest.approx(float(np.std(sim_phi)), rel=0.2)
     # matched Coulomb compensation
     assert th0 / th1 >= 5.0 and ph0 / ph1 >= 5.0, f"std θ {th0:.5f} → {th1:.5f}, std φ {ph0:.4f} → {ph1:.4f}"
+    # the run's own summary says what happened: the limit cycle at the frequency of the log's φ, its amplitude
+    # the log's, and the effect the mock was given; with the matched compensation none of that size
+    lc = read_summary(tmp_path / "none")["limit_cycle_phi"]
+    x = phi0 - phi0.mean()
+    acf = np.array([np.dot(x[:-k], x[k:]) / (len(x) - k) for k in range(1, len(x) // 2)])
+    first_peak = int(np.argmax(np.where(np.arange(1, len(x) // 2) > RATE, acf, -np.inf))) + 1  # beyond 1 s
+    assert lc is not None and lc["period"] == pytest.approx(first_peak / RATE, rel=0.03)
+    assert lc["amplitude"] == pytest.approx(0.5 * float(np.ptp(phi0)), rel=0.1)
+    assert "limit cycle: φ ±" in runs["none"].stdout and f"mock injected: {FRICTION}" in runs["none"].stdout
+    lc1 = read_summary(tmp_path / "coulomb")["limit_cycle_phi"]
+    assert lc1 is None or lc1["amplitude"] < 0.2 * lc["amplitude"]
 
 
 def test_trip_on_theta_limit_ends_with_zero(tmp_path: Path) -> None:

@@ -43,7 +43,7 @@ from furuta_rt.runtime.channel import Channel, Flag
 from furuta_rt.runtime.hardware import DeviceInfo, SerialHardware
 from furuta_rt.runtime.logger import LogSetup, logger_process
 from furuta_rt.runtime.rt import setup_realtime
-from furuta_rt.runtime.summary import format_summary, summary_dict
+from furuta_rt.runtime.summary import format_summary, mock_injections, summary_dict
 
 LOG_QUEUE_BATCHES = 200  # 20 s of ticks at 10 batches/s before the loop starts dropping
 CHILD_START_TIMEOUT_S = 60.0
@@ -296,7 +296,8 @@ def run_daemon(opts: RunOptions) -> int:
             hw.close()
         children.stop_dashboard()
         summary = "" if result is None else format_summary(result, rate_hz=rate, mode=opts.mode, rig=rig.name,
-                                                            log_path=opts.log_path, limits=_limits_text(opts, rate))
+                                                            log_path=opts.log_path, limits=_limits_text(opts, rate),
+                                                            injected=mock_injections(opts.mock_args))
         log_ok = children.close_logger(summary)
         if mock_proc is None and mock_start is not None:  # start-up failed elsewhere: do not leave it running
             with contextlib.suppress(Exception):
@@ -309,7 +310,8 @@ def run_daemon(opts: RunOptions) -> int:
     if not log_ok and opts.log_path and result is not None:  # say what the file holds, not what was sent to it
         log_ticks = _ticks_on_disk(opts.log_path)
         summary = format_summary(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path,
-                                 limits=_limits_text(opts, rate), log_ticks=log_ticks, log_incomplete=True)
+                                 limits=_limits_text(opts, rate), log_ticks=log_ticks, log_incomplete=True,
+                                 injected=mock_injections(opts.mock_args))
     print(summary, flush=True)
     if mock_stats.strip():
         print("\n".join("  " + line for line in mock_stats.strip().splitlines()), flush=True)
@@ -317,6 +319,7 @@ def run_daemon(opts: RunOptions) -> int:
         _say(f"error: the log {opts.log_path} is incomplete: the logger could not finish it (exit {EXIT_LOG_INCOMPLETE})")
     if opts.summary_json:
         data = summary_dict(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path, warnings=warnings,
+                            injected=mock_injections(opts.mock_args),
                             log_ticks=log_ticks if not log_ok else result.ticks if opts.log_path else None)
         Path(opts.summary_json).write_text(json.dumps(data, indent=1) + "\n")
     if result.end == "trip":

@@ -35,6 +35,7 @@ from firmware_protocol import COMMAND_FULL_SCALE, FAULT_MASK, CommandFlags, Stat
 from furuta_rt.control.controller import Controller, Measurement
 from furuta_rt.runtime.hardware import HardwareInterface, LinkLost
 from furuta_rt.runtime.records import STATE_NAMES, TICK_RECORD
+from furuta_rt.runtime.summary import RecentTrace
 from furuta_rt.runtime.supervisor import State, Supervisor, TripReason
 from furuta_rt.runtime.timing import DeviceClock, Histogram, RunningStats
 
@@ -93,6 +94,7 @@ class LoopResult:
     phi: RunningStats = field(default_factory=RunningStats)
     u: RunningStats = field(default_factory=RunningStats)
     u_comp: RunningStats = field(default_factory=RunningStats)
+    trace: RecentTrace = field(default_factory=RecentTrace)  # t, θ, φ of the last minute of balancing (summary)
     events: list[tuple[int, str, str]] = field(default_factory=list)  # (wall ns, level, message)
 
     @property
@@ -406,6 +408,7 @@ class ControlLoop:
                     r.phi.add(phi)
                     r.u.add(u)
                     r.u_comp.add(u_comp)
+                    r.trace.add(m.t, theta, phi)
             if log_on:
                 self._batch.append((
                     self._wall0 + (t1 - self._perf0), dev_us * 1000, seq, dev_us * 1e-6,

@@ -1,12 +1,72 @@
-"""The end-of-run summary: what the loop achieved (rate, jitter, latency, faults) and how well it balanced."""
+"""The end-of-run summary: what the loop achieved (rate, jitter, latency, faults), how well it balanced,
+whether it settled into a limit cycle (thesis sections 5-6: arm friction makes the balanced pendulum
+oscillate), and what the mock was told to inject.
+
+To add a figure: a key in ``summary_dict`` and, when it says something, a line from ``_what_happened``
+(each line is built by one small function, so others can add theirs without touching the rest).
+"""
 
 from __future__ import annotations
 
+import itertools
 import math
+from collections.abc import Sequence
+from dataclasses import asdict
 from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from furuta_rt.stats import LimitCycle, limit_cycle_stats
 
 if TYPE_CHECKING:
     from furuta_rt.runtime.loop import LoopResult
+
+class RecentTrace:
+    """The last ``capacity`` (t, θ, φ) samples of balancing, in preallocated lists used as a ring: one store
+    per value and tick in the control loop, nothing allocated that grows."""
+
+    __slots__ = ("capacity", "n", "phi", "t", "theta")
+
+    def __init__(self, capacity: int = 60_000) -> None:
+        self.capacity = capacity
+        self.n = 0
+        self.t = [0.0] * capacity
+        self.theta = [0.0] * capacity
+        self.phi = [0.0] * capacity
+
+    def add(self, t: float, theta: float, phi: float) -> None:
+        i = self.n % self.capacity
+        self.t[i] = t
+        self.theta[i] = theta
+        self.phi[i] = phi
+        self.n += 1
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(t, θ, φ) in time order."""
+        k = min(self.n, self.capacity)
+        start = self.n % self.capacity if self.n > self.capacity else 0
+        order = (np.arange(k) + start) % self.capacity
+        return tuple(np.asarray(v)[order] for v in (self.t, self.theta, self.phi))  # type: ignore[return-value]
+
+
+def limit_cycles(trace: RecentTrace) -> tuple[LimitCycle | None, LimitCycle | None]:
+    """The limit cycle of φ and of θ in ``trace`` (furuta_rt.stats, the detector replay uses)."""
+    t, theta, phi = trace.arrays()
+    if len(t) < 16:
+        return None, None
+    return limit_cycle_stats(t, phi), limit_cycle_stats(t, theta)
+
+
+def mock_injections(mock_args: Sequence[str] | None) -> list[str]:
+    """The effects and faults a ``--mock`` run asked hil-mock for (its --effect/--fault arguments)."""
+    args = list(mock_args or ())
+    out = []
+    for flag, value in itertools.pairwise(args):
+        if flag == "--effect":
+            out.append(value)
+        elif flag == "--fault":
+            out.append(f"fault {value}")
+    return out
 
 ENDINGS = {
     "duration": "duration reached",
@@ -21,11 +81,13 @@ def _num(x: float) -> float | None:
 
 
 def summary_dict(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path: str | None,
-                 warnings: list[str], log_ticks: int | None = None) -> dict[str, Any]:
+                 warnings: list[str], log_ticks: int | None = None, injected: Sequence[str] = ()) -> dict[str, Any]:
     """All figures of the run as one JSON-able dict (``--summary-json``; ``log_ticks``: the ticks the log
-    holds, fewer than ``ticks`` when it is incomplete)."""
+    holds, fewer than ``ticks`` when it is incomplete; ``injected``: mock_injections)."""
     def hist(h: Any) -> dict[str, float | None]:
         return {k: _num(v) for k, v in h.summary().items()}
+
+    lc_phi, lc_theta = limit_cycles(r.trace)
 
     return {
         "rig": rig, "mode": mode, "rate_hz": rate_hz, "end": r.end, "trip_reason": r.trip_reason,
@@ -41,6 +103,8 @@ def summary_dict(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path
         "dropped_log_messages": r.dropped_log_messages,
         "std_theta": _num(r.theta.std), "std_phi": _num(r.phi.std), "std_u": _num(r.u.std),
         "mean_u_comp": _num(r.u_comp.mean) if r.u_comp.n else None, "std_u_comp": _num(r.u_comp.std),
+        "limit_cycle_phi": asdict(lc_phi) if lc_phi else None, "limit_cycle_theta": asdict(lc_theta) if lc_theta else None,
+        "mock_injected": list(injected),
         "log": log_path, "log_ticks": log_ticks, "warnings": warnings,
         "events": [{"wall_ns": t, "level": lvl, "message": m} for t, lvl, m in r.events],
     }
@@ -52,10 +116,27 @@ def _p(h: Any, unit: str = "µs") -> str:
     return f"p50 {h.percentile(0.5):.0f}  p99 {h.percentile(0.99):.0f}  max {h.max:.0f} {unit}"
 
 
+def _limit_cycle_line(r: LoopResult) -> str | None:
+    if r.theta.n <= 1:
+        return None
+    lc_phi, lc_theta = limit_cycles(r.trace)
+    if lc_phi is None:
+        span = min(r.trace.n, r.trace.capacity)
+        return f"  no limit cycle in φ (none of two or more regular cycles in the last {span} balancing ticks)"
+    theta = f"; θ ±{lc_theta.amplitude:.4f} rad" if lc_theta is not None else ""
+    return (f"  limit cycle: φ ±{lc_phi.amplitude:.3f} rad, period {lc_phi.period:.2f} s "
+            f"({lc_phi.cycles} cycles){theta} — arm friction? try --comp coulomb")
+
+
+def _injected_line(injected: Sequence[str]) -> str | None:
+    return f"  mock injected: {', '.join(injected)}" if injected else None
+
+
 def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path: str | None, limits: str = "",
-                   log_ticks: int | None = None, log_incomplete: bool = False) -> str:
+                   log_ticks: int | None = None, log_incomplete: bool = False, injected: Sequence[str] = ()) -> str:
     """The human-readable summary printed at the end of every run (``limits``: the safety limits used;
-    ``log_incomplete``: the logger failed and the log holds ``log_ticks`` ticks, None: unreadable)."""
+    ``log_incomplete``: the logger failed and the log holds ``log_ticks`` ticks, None: unreadable;
+    ``injected``: what the mock was told to simulate, mock_injections)."""
     nominal = 1e6 / rate_hz
     ending = ENDINGS.get(r.end, r.end)
     if r.end == "trip":
@@ -78,6 +159,7 @@ def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_pa
         )
     elif r.balancing_ticks == 0:
         lines.append("  never balanced: the pendulum was not brought within the arming window (|θ| < arm_theta)")
+    lines += [line for line in (_limit_cycle_line(r), _injected_line(injected)) if line]
     if limits:
         lines.append(f"  limits: {limits}")
     if not log_path:
