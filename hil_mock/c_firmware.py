@@ -20,6 +20,7 @@ from furuta_rt.model.rig import RigModel
 from hil_mock.config import MAX_RATE_HZ, DeviceSettings
 from hil_mock.firmware import Firmware
 
+WRAPPING_RAIL = 1 << 20  # beyond every int16 reading
 TX_BYTES = 2048  # host_hal.c HOST_TX_BYTES
 TX_FRAMES = 64  # host_hal.c HOST_TX_FRAMES
 STATE_FIELDS = (
@@ -106,7 +107,9 @@ class CFirmware(Firmware):
             theta_offset_counts=off, theta_dot_rad_s_per_count=cal.theta_dot_rad_s_per_count,
             theta_dot_offset_counts=0, phi_counts_per_rev=cal.phi_counts_per_rev,
             actuator_full_scale=self.full_scale, actuator_kind=int(self.actuator_kind),
-            theta_adc_min=cal.adc_min + off, theta_adc_max=cal.adc_max + off,
+            # a full-turn θ sensor wraps instead of saturating: rails outside the i16 readings, never over-range
+            theta_adc_min=-WRAPPING_RAIL if cal.theta_wraps else cal.adc_min + off,
+            theta_adc_max=WRAPPING_RAIL if cal.theta_wraps else cal.adc_max + off,
             theta_dot_adc_min=cal.adc_min, theta_dot_adc_max=cal.adc_max,
         )
         self._dev = ctypes.create_string_buffer(lib.host_device_size())

@@ -26,6 +26,7 @@ import pytest
 from test_hil_mock import done_when
 from test_reliability_harness import DaemonProcess, read_summary, traceback_free
 
+import furuta_rt
 from firmware_protocol import (
     FAULT_MASK,
     PROTOCOL_VERSION,
@@ -55,8 +56,8 @@ CLEAR = int(CommandFlags.CLEAR_FAULT)
 F = StatusFlags
 
 
-def new_device(kind: str, rate: int = 500, **device: object) -> Firmware:
-    cfg = build_config(device={"rate_hz": rate, **device})
+def new_device(kind: str, rate: int = 500, rig: str | None = None, **device: object) -> Firmware:
+    cfg = build_config(rig=rig, device={"rate_hz": rate, **device})
     rig = cfg.load_rig()
     return make_firmware(kind, rig, RigModel.from_config(rig, cfg.effects), cfg.device, rate)
 
@@ -169,19 +170,29 @@ def session(fw: Firmware) -> ScriptedHost:
     fw.hangup()  # the host closed the port
     h.tick(3)
     h.hello(nonce=10)
-    h.tick(800)  # nobody answers: the watchdog trips, the pendulum falls onto θ's ADC rail
+    h.tick(800)  # nobody answers: the watchdog trips, the pendulum falls (onto θ's ADC rail, or θ wraps)
     h.answer(flags=ENABLE)  # CLEAR_FAULT while θ still reads the rail: ADC_OVERRANGE stays
     h.tick(3)
     return h
 
 
+SENSORS = ("wrapping", "saturating")
+"""The thesis rig's θ sensor reads the full turn (θ wraps at ±π); the same rig with a θ sensor that saturates."""
+
+
 @pytest.fixture(scope="module")
-def sessions() -> dict[str, ScriptedHost]:
-    return {kind: session(new_device(kind)) for kind in ("python", "c")}
+def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, str], ScriptedHost]:
+    thesis = (Path(furuta_rt.__file__).parent / "rigs" / "thesis.toml").read_text()
+    assert "theta_wraps = true" in thesis
+    saturating = tmp_path_factory.mktemp("rig") / "saturating.toml"
+    saturating.write_text(thesis.replace("theta_wraps = true", "theta_wraps = false"))
+    rigs = {"wrapping": None, "saturating": str(saturating)}
+    return {(sensor, kind): session(new_device(kind, rig=rigs[sensor])) for sensor in SENSORS for kind in ("python", "c")}
 
 
-def test_c_and_python_devices_send_the_same_bytes(sessions: dict[str, ScriptedHost]) -> None:
-    py, c = sessions["python"], sessions["c"]
+@pytest.mark.parametrize("sensor", SENSORS)
+def test_c_and_python_devices_send_the_same_bytes(sessions: dict[tuple[str, str], ScriptedHost], sensor: str) -> None:
+    py, c = sessions[sensor, "python"], sessions[sensor, "c"]
     assert len(py.trace) > 3000
     first = next((i for i, (a, b) in enumerate(zip(py.trace, c.trace, strict=False)) if a != b), None)
     assert first is None, f"first difference at trace entry {first}: python {py.trace[first]!r}, c {c.trace[first]!r}"
@@ -193,21 +204,27 @@ def test_c_and_python_devices_send_the_same_bytes(sessions: dict[str, ScriptedHo
     assert (c.fw.decoder.crc_errors, c.fw.decoder.errors) == (py.fw.decoder.crc_errors, py.fw.decoder.errors)
 
 
-def test_the_session_exercises_every_rule(sessions: dict[str, ScriptedHost]) -> None:
+@pytest.mark.parametrize("sensor", SENSORS)
+def test_the_session_exercises_every_rule(sessions: dict[tuple[str, str], ScriptedHost], sensor: str) -> None:
     """The comparison above is only as good as the session: each rule and flag must have been hit."""
-    fw = sessions["c"].fw
+    host = sessions[sensor, "c"]
+    fw = host.fw
     seen = 0
-    for s in sessions["c"].samples:
+    for s in host.samples:
         seen |= s.status
-    for flag in (F.WATCHDOG_TRIPPED, F.ADC_OVERRANGE, F.CRC_ERROR, F.ENABLED, F.COMMAND_LATE, F.TICK_OVERRUN,
-                 F.CONFIG_REJECTED, F.TX_OVERFLOW):
+    for flag in (F.WATCHDOG_TRIPPED, F.CRC_ERROR, F.ENABLED, F.COMMAND_LATE, F.TICK_OVERRUN, F.CONFIG_REJECTED,
+                 F.TX_OVERFLOW):
         assert seen & flag, flag.name
     assert fw.handshakes == 4 and fw.handshakes_refused == 1 and fw.reboots == 1 and fw.hangups == 1
     assert fw.replacements == 3 and fw.watchdog_trips == 2  # after the reset, the STOP and the hang-up
     assert fw.commands_discarded > 200 and fw.decoder.crc_errors > 0 and fw.decoder.errors > fw.decoder.crc_errors
-    last = sessions["c"].samples[-1]
-    assert last.theta_adc == 32767 and last.status & F.ADC_OVERRANGE and fw.output == 0.0
-    seqs = [s.seq for s in sessions["c"].samples[-800:]]
+    fall = host.samples[-800:]
+    if sensor == "saturating":  # θ reached π: the ADC rail latches ADC_OVERRANGE, which CLEAR_FAULT cannot clear
+        assert fall[-1].theta_adc == 32767 and fall[-1].status & F.ADC_OVERRANGE and fw.output == 0.0
+    else:  # θ swings through ±π: the readings wrap across the whole range, never an over-range
+        assert max(s.theta_adc for s in fall) > 32000 and min(s.theta_adc for s in fall) < -32000
+        assert not seen & F.ADC_OVERRANGE and not fw.faults & F.ADC_OVERRANGE
+    seqs = [s.seq for s in fall]
     assert seqs == list(range(seqs[0], seqs[0] + 800))  # no seq skipped, the overrun included
 
 

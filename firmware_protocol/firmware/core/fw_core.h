@@ -40,7 +40,8 @@ typedef struct {
     uint32_t phi_counts_per_rev;
     float actuator_full_scale;
     uint8_t actuator_kind; /* FP_ACT_* */
-    /* ADC rails: a reading at or beyond one is over-range (ADC_OVERRANGE) */
+    /* ADC rails: a reading at or beyond one is over-range (ADC_OVERRANGE); rails outside the int16
+     * range: never (a full-turn θ sensor that wraps instead of saturating) */
     int32_t theta_adc_min, theta_adc_max;
     int32_t theta_dot_adc_min, theta_dot_adc_max;
 } fw_board_t;
