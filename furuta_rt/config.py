@@ -161,12 +161,14 @@ class ControlConfig(_Section):
 class CoulombComp(_Section):
     Fc: NonNegative = 0.0
     epsilon: NonNegative = 0.05
+    Fv: NonNegative = Field(default=0.0, description="viscous part compensated as well, N m s/rad")
 
 
 class StictionComp(_Section):
     Fc: NonNegative = 0.0
     Fs: NonNegative = 0.0
     v_zero: NonNegative = 0.02
+    Fv: NonNegative = Field(default=0.0, description="viscous part compensated as well, N m s/rad")
 
 
 class LuGreComp(_Section):
@@ -178,7 +180,20 @@ class LuGreComp(_Section):
     Fv: NonNegative = 0.0
 
 
-CompMode = Literal["none", "coulomb", "stiction", "lugre"]
+class AdaptiveComp(_Section):
+    """Adaptive Coulomb compensation (furuta_rt.control.compensation.AdaptiveCoulomb)."""
+
+    Fc0: NonNegative = Field(default=0.0, description="initial Coulomb estimate, N m")
+    Fc_max: Positive = Field(default=1.5, description="upper bound of the estimate, N m")
+    time_constant: Positive = Field(default=0.5, description="convergence time constant while the arm slides, s")
+    epsilon: NonNegative = Field(default=0.01, description="ε of eq. 1 in the applied compensation, rad/s")
+    v_min: Positive = Field(default=0.1, description="|φ̂̇| below which the sign is uncertain: estimate frozen, rad/s")
+    holdoff_ticks: Annotated[int, Field(ge=0, le=1000)] = Field(
+        default=10, description="ticks the sign of φ̂̇ must hold (above v_min) before adapting again after a reversal")
+
+
+CompMode = Literal["none", "coulomb", "stiction", "lugre", "adaptive"]
+COMP_MODES: tuple[str, ...] = ("none", "coulomb", "stiction", "lugre", "adaptive")
 
 
 class CompensationConfig(_Section):
@@ -186,6 +201,7 @@ class CompensationConfig(_Section):
     coulomb: CoulombComp = CoulombComp()
     stiction: StictionComp = StictionComp()
     lugre: LuGreComp = LuGreComp()
+    adaptive: AdaptiveComp = AdaptiveComp()
 
 
 class ObserverConfig(_Section):

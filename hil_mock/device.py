@@ -31,6 +31,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from furuta_rt.errors import UserError
 from furuta_rt.model.rig import RigModel
 from hil_mock.c_firmware import make_firmware
 from hil_mock.config import MockConfig
@@ -82,6 +83,8 @@ class DeviceStats:
     rx_bytes_dropped: int
     wall_s: float
     plant_s: float
+    friction_steps: int = 0
+    arm_coulomb: float = 0.0  # the arm's Coulomb level at the end (after any friction_step), N m
 
     @property
     def realtime_factor(self) -> float:
@@ -105,7 +108,9 @@ class DeviceStats:
             f"{self.handshakes_refused}), hangups {self.hangups}, tx frames dropped {self.tx_frames_dropped}",
             f"hil-mock: faults: resets {self.resets}, stalls {self.stalls}, tx bytes corrupted "
             f"{self.tx_bytes_corrupted} dropped {self.tx_bytes_dropped}, rx bytes corrupted {self.rx_bytes_corrupted} "
-            f"dropped {self.rx_bytes_dropped}",
+            f"dropped {self.rx_bytes_dropped}"
+            + (f", friction steps {self.friction_steps} (arm Coulomb now {self.arm_coulomb:g} N m)"
+               if self.friction_steps else ""),
         ))
 
 
@@ -131,6 +136,10 @@ class VirtualDevice:
         self.pacing = dev.pacing
         self._spin_s = dev.spin_us * 1e-6
         self._events: list[FaultEvent] = f.events()
+        if model.arm_friction.lugre is not None and any(e.kind == "friction_step" for e in self._events):
+            raise UserError("fault friction_step sets the arm's Coulomb level; this rig's arm friction is LuGre "
+                            "(arm_lugre): give the step as a Coulomb rig or drop the fault")
+        self.friction_steps = 0
         self._actions: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
         self._delayed: deque[tuple[float, bytes]] = deque()
         self._backlog = bytearray()
@@ -257,6 +266,10 @@ class VirtualDevice:
                 self._timed_flag("muted", ev.duration)
             elif ev.kind == "deaf":
                 self._timed_flag("deafened", ev.duration)
+            elif ev.kind == "friction_step":
+                values = dict(ev.params)
+                fw.set_arm_coulomb(values["Fc"], values.get("Fs"))
+                self.friction_steps += 1
             elif ev.kind.startswith("end_"):
                 setattr(self.link, ev.kind[4:], False)
 
@@ -460,4 +473,6 @@ class VirtualDevice:
             rx_bytes_dropped=link.rx_dropped,
             wall_s=max(end - self._t_start, 0.0) if self._t_start else 0.0,
             plant_s=fw.plant_time,
+            friction_steps=self.friction_steps,
+            arm_coulomb=fw.model.arm_friction.dry.sliding_level if fw.model.arm_friction.dry is not None else 0.0,
         )

@@ -12,6 +12,8 @@ first handshake, duration as ``100ms``, ``0.1s`` or ``0.1`` (seconds):
     disconnect@5        the device vanishes: the pty master is closed (the host sees EOF/EIO)
     mute@2.0:50ms       every device→host byte is lost for the duration (the device keeps running)
     deaf@2.0:50ms       every host→device byte is lost for the duration (the watchdog will trip)
+    friction_step@8:Fc=0.5   the arm's Coulomb friction becomes 0.5 N m from then on (a bearing that wears or
+                        is re-greased; the adaptive compensation has to follow). Fs=… (breakaway, ≥ Fc) too.
 """
 
 from __future__ import annotations
@@ -20,8 +22,11 @@ import random
 import re
 from dataclasses import dataclass
 
-FAULT_KINDS = ("stall", "reset", "disconnect", "mute", "deaf")
+FAULT_KINDS = ("stall", "reset", "disconnect", "mute", "deaf", "friction_step")
 _NEEDS_DURATION = ("stall", "mute", "deaf")
+FRICTION_STEP_PARAMS = ("Fc", "Fs")
+"""What ``friction_step@T:NAME=V[,NAME=V]`` may set: the arm's Coulomb (sliding) level and its breakaway."""
+_PARAMS_RE = re.compile(r"^(?P<kind>[a-z_]+)@(?P<at>[0-9.eE+-]+):(?P<params>[A-Za-z_]\w*=.*)$")
 _FAULT_RE = re.compile(r"^(?P<kind>[a-z]+)@(?P<at>[0-9.eE+-]+)(?::(?P<dur>[0-9.eE+-]+)(?P<unit>ms|s)?)?$")
 
 
@@ -32,8 +37,11 @@ class FaultEvent:
     kind: str
     at: float
     duration: float = 0.0
+    params: tuple[tuple[str, float], ...] = ()  # friction_step: (name, value) pairs
 
     def __str__(self) -> str:
+        if self.params:
+            return f"{self.kind}@{self.at:g}:" + ",".join(f"{k}={v:g}" for k, v in self.params)
         return f"{self.kind}@{self.at:g}" + (f":{self.duration * 1e3:g}ms" if self.duration else "")
 
 
@@ -42,8 +50,41 @@ def parse_duration(text: str, unit: str | None) -> float:
     return value / 1000.0 if unit == "ms" else value
 
 
+def _parse_friction_step(text: str, at_text: str, params: str) -> FaultEvent:
+    form = "friction_step@seconds:Fc=N_m[,Fs=N_m], e.g. friction_step@8:Fc=0.5"
+    try:
+        at = float(at_text)
+    except ValueError:
+        raise ValueError(f"fault {text!r}: the time must be a number ({form})") from None
+    values: dict[str, float] = {}
+    for item in params.split(","):
+        name, _, value = item.partition("=")
+        name = name.strip()
+        if name not in FRICTION_STEP_PARAMS:
+            raise ValueError(f"fault {text!r}: friction_step sets {' or '.join(FRICTION_STEP_PARAMS)}, not {name!r} ({form})")
+        try:
+            values[name] = float(value)
+        except ValueError:
+            raise ValueError(f"fault {text!r}: {name} must be a number of N m ({form})") from None
+        if not (values[name] >= 0 and values[name] < float("inf")):
+            raise ValueError(f"fault {text!r}: {name} must be a finite torque >= 0 N m")
+    if "Fc" not in values:
+        raise ValueError(f"fault {text!r}: friction_step needs the new Coulomb level Fc ({form})")
+    if "Fs" in values and values["Fs"] < values["Fc"]:
+        raise ValueError(f"fault {text!r}: the breakaway Fs must be >= the sliding level Fc")
+    if at < 0:
+        raise ValueError(f"fault {text!r}: time must be >= 0")
+    return FaultEvent("friction_step", at, params=tuple(values.items()))
+
+
 def parse_fault(text: str) -> FaultEvent:
-    """Parse ``kind@time[:duration]``. Raises ValueError naming the problem and the expected form."""
+    """Parse ``kind@time[:duration]`` (``friction_step@time:Fc=V``). Raises ValueError naming the problem and
+    the expected form."""
+    p = _PARAMS_RE.match(text.strip())
+    if p is not None and p["kind"] == "friction_step":
+        return _parse_friction_step(text, p["at"], p["params"])
+    if text.strip().startswith("friction_step@"):
+        raise ValueError(f"fault {text!r}: friction_step needs the new level, e.g. friction_step@8:Fc=0.5")
     m = _FAULT_RE.match(text.strip())
     form = "kind@seconds[:duration], e.g. stall@2.0:100ms, reset@3, disconnect@5"
     if m is None:

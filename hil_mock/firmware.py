@@ -54,6 +54,7 @@ from firmware_protocol import (
     encode,
 )
 from furuta_rt.config import RigConfig
+from furuta_rt.model.friction import Coulomb, CoulombStiction
 from furuta_rt.model.rig import RigModel
 from furuta_rt.sim.simulator import Simulator
 from hil_mock.config import MAX_RATE_HZ, DeviceSettings
@@ -325,6 +326,19 @@ class Firmware:
         if n > 0:
             self.sim.advance(n)
             self.substeps_done = target
+
+    def set_arm_coulomb(self, fc: float, fs: float | None = None) -> None:
+        """The arm's Coulomb level becomes ``fc`` (breakaway ``fs``, default: the present one, at least fc) from
+        now on, viscous part unchanged (the friction_step fault); kept across session restarts."""
+        arm = self.model.arm_friction
+        if arm.lugre is not None:
+            raise ValueError("friction_step sets a Coulomb level; this rig's arm friction is LuGre")
+        old_fs = arm.dry.stick_limit if isinstance(arm.dry, CoulombStiction) else None
+        breakaway = fs if fs is not None else (max(old_fs, fc) if old_fs is not None else None)
+        dry = Coulomb(Fc=fc) if breakaway is None else CoulombStiction(Fc=fc, Fs=breakaway)
+        friction = dataclasses.replace(arm, dry=dry)
+        self.model = dataclasses.replace(self.model, arm_friction=friction)
+        self.sim.set_arm_friction(friction)
 
     def skip(self, periods: int) -> None:
         """The timer fired ``periods`` times without the tick running (overrun, stall): the clock and

@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from furuta_rt.cli._common import parse_gains
-from furuta_rt.config import load_rig
+from furuta_rt.config import COMP_MODES, load_rig
 from furuta_rt.io.csv import write_csv
 from furuta_rt.io.mcap_read import log_to_recording, read_log, require_ticks
 from furuta_rt.recording import Recording
@@ -20,7 +20,7 @@ from furuta_rt.replay.plot import plot_recording
 from furuta_rt.replay.progress import progress_bar
 from furuta_rt.stats import summary_stats
 
-MODES = ("none", "coulomb", "stiction", "lugre")
+MODES = COMP_MODES
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -17,11 +17,10 @@ import math
 from pathlib import Path
 
 from furuta_rt.cli._common import add_config_argument, parse_gains, rig_from_args
-from furuta_rt.config import RigConfig
+from furuta_rt.config import COMP_MODES, RigConfig
 from furuta_rt.errors import UserError
 from furuta_rt.io.output import probe_writable, refuse_existing
 
-COMP_MODES = ("none", "coulomb", "stiction", "lugre")
 MOCK_TIMEOUT_MS = 500.0
 """With --mock the timing trips (link loss, device watchdog, repeated overruns) tolerate stalls up to
 this long: hil-mock is a Python process, and a pseudo-terminal hands bytes over in kernel workers that
@@ -48,7 +47,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "an existing file only with --force")
     p.add_argument("--force", action="store_true", help="replace an existing --log file (it is replaced when the "
                    "device has answered, not before)")
-    p.add_argument("--comp", choices=COMP_MODES, help="friction compensation (default: the config's compensation.mode)")
+    p.add_argument("--comp", choices=COMP_MODES, help="friction compensation (default: the config's compensation.mode); "
+                   "adaptive: Coulomb compensation whose level is estimated online while balancing")
+    p.add_argument("--comp-from", metavar="REPORT.json", help="compensate the arm friction that `furuta-rt diagnose "
+                   "--json` found (Coulomb, stiction, LuGre, viscous): its parameters, the mode chosen from them")
     p.add_argument("--rate", type=int, metavar="HZ", help="loop rate (default: the config's control.rate_hz)")
     p.add_argument("--gains", metavar="L1,L2,L3,L4", help="use these gains instead of the configured design")
     p.add_argument("--no-tui", action="store_true", help="no live dashboard; print a summary at the end "
@@ -134,8 +136,18 @@ def run(args: argparse.Namespace) -> int:
                      or args.mock_firmware is not None)
     if has_mock_opts and not args.mock:
         raise UserError("--mock-effect/--mock-fault/--mock-seed/--mock-firmware/--mock-arg only apply with --mock")
+    if args.comp and args.comp_from:
+        raise UserError("--comp and --comp-from contradict each other; give one of them")
     rig = rig_from_args(args)
     gains = parse_gains(args.gains)
+    comp_source = ""
+    warnings: list[str] = []
+    if args.comp_from:
+        from furuta_rt.control.comp_from import compensation_from_report
+
+        found = compensation_from_report(args.comp_from, rig.compensation, rig.name)
+        rig = rig.model_copy(update={"compensation": found.compensation})
+        comp_source, warnings = found.source, list(found.warnings)
     rig = effective_rig(rig, args.rate, args.comp, gains)
     rate_f = rig.control.rate_hz
     if rate_f != int(rate_f):
@@ -178,5 +190,7 @@ def run(args: argparse.Namespace) -> int:
         gains=gains,
         summary_json=args.summary_json,
         rig_source=rig_source,
+        comp_source=comp_source,
+        warnings=warnings,
     )
     return run_daemon(opts)

@@ -3,6 +3,7 @@
 One call of ``Controller.update`` per tick (read → **update** → write):
 
     φ̂̇ ← observer corrected with φ
+    (adaptive compensation only) F̂c learns from the observer's correction (compensation.AdaptiveCoulomb)
     u_lin = L·[θ_f, θ̇_f, φ, φ̂̇]                       (eq. 5)
     F̂   = compensation(φ̂̇, u_lin)                     (section 7)
     u    = sat(u_lin + F̂)
@@ -102,6 +103,8 @@ class Controller:
             d = swing_up.design
             self._ref_decay = math.exp(-d.period / d.arm_return_s)
             self._ref_rate = 1.0 / d.arm_return_s
+        od = observer.design  # arm torque (N m) per rad of innovation: velocity correction / speed per N m per tick
+        self._torque_per_innovation = float(od.K[1] / od.Bd[1, 1]) / command_per_torque
 
     @classmethod
     def from_rig(
@@ -164,7 +167,12 @@ class Controller:
             elif not self.swinging and su.fallen(m.theta):
                 self.swinging = True
                 su.reset()
+        innovation = m.phi - obs.phi
+        phi_dot_prior = obs.phi_dot
         phi_dot = obs.correct(m.phi)
+        adaptive = self.compensator.adaptive
+        if adaptive is not None and not self.swinging:  # prior φ̂̇ as regressor: independent of this tick's noise
+            adaptive.adapt(innovation * self._torque_per_innovation, phi_dot_prior)
         if self.swinging:
             u_lin = su.command(m.theta, m.theta_dot, m.phi, phi_dot)  # type: ignore[union-attr]
         else:

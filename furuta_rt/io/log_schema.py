@@ -17,6 +17,7 @@ Channels:
   /furuta/timing  one per tick: period, read/update/write durations, latency, counters
   /furuta/joint_states  foxglove.JointStates-shaped: θ and φ as two joints (position, velocity, effort)
   /furuta/events  foxglove.Log-shaped: supervisor transitions, faults, warnings
+  /furuta/compensation  (``--comp adaptive`` runs) one per tick: the online Coulomb estimate fc_hat, N m
 Metadata records:
   "rig"     {"name": ..., "toml": <the rig config as TOML text>, "json": <RigConfig JSON>}
   "run"     {"mode": compensation mode, "gains": "[l1,l2,l3,l4]" JSON, "rate_hz": ..., "port": ..., "version": ...}
@@ -38,6 +39,7 @@ TICK_TOPIC = "/furuta/tick"
 TIMING_TOPIC = "/furuta/timing"
 JOINT_STATES_TOPIC = "/furuta/joint_states"
 EVENTS_TOPIC = "/furuta/events"
+COMPENSATION_TOPIC = "/furuta/compensation"
 
 RIG_METADATA = "rig"
 RUN_METADATA = "run"
@@ -87,7 +89,13 @@ def _object_schema(title: str, fields: dict[str, dict[str, Any]]) -> dict[str, A
     return {"title": title, "type": "object", "properties": fields, "required": list(fields)}
 
 
+COMPENSATION_FIELDS: dict[str, dict[str, Any]] = {
+    "seq": _INT,
+    "fc_hat": _NUM,  # the Coulomb level the compensator uses this tick (adaptive: the estimate), N m
+}
+
 TICK_SCHEMA = _object_schema("furuta_rt.Tick", TICK_FIELDS)
+COMPENSATION_SCHEMA = _object_schema("furuta_rt.Compensation", COMPENSATION_FIELDS)
 TIMING_SCHEMA = _object_schema("furuta_rt.Timing", TIMING_FIELDS)
 
 # foxglove.JointStates / foxglove.Log shapes (JSON encoding), see https://docs.foxglove.dev/docs/visualization/message-schemas

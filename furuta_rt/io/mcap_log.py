@@ -101,6 +101,9 @@ class LogWriter:
             sid = w.register_schema(schema["title"], "jsonschema", _dumps(schema))
             return w.register_channel(topic, "json", sid)
 
+        self._channel = channel
+        self._compensation: int | None = None  # registered with the first message (adaptive runs only)
+
         self._tick = channel(ls.TICK_TOPIC, ls.TICK_SCHEMA)
         self._timing = channel(ls.TIMING_TOPIC, ls.TIMING_SCHEMA)
         self._joints = channel(ls.JOINT_STATES_TOPIC, ls.JOINT_STATES_SCHEMA)
@@ -130,6 +133,14 @@ class LogWriter:
 
     def timing(self, log_time: int, fields: Mapping[str, Any]) -> None:
         self._writer.add_message(self._timing, log_time, _dumps(fields), log_time, int(fields["seq"]) & 0xFFFFFFFF)
+
+    def compensation(self, time_ns: int, seq: int, fc_hat: float) -> None:
+        """One /furuta/compensation message at the tick's time: the compensator's Coulomb level (the adaptive
+        estimate)."""
+        if self._compensation is None:
+            self._compensation = self._channel(ls.COMPENSATION_TOPIC, ls.COMPENSATION_SCHEMA)
+        seq &= 0xFFFFFFFF
+        self._writer.add_message(self._compensation, time_ns, _dumps({"seq": seq, "fc_hat": fc_hat}), time_ns, seq)
 
     def event(self, log_time: int, level: str, message: str, name: str = "furuta_rt") -> None:
         body = {

@@ -69,6 +69,7 @@ class RunOptions:
     summary_json: str | None = None
     rig_source: str = "thesis"
     warnings: list[str] = field(default_factory=list)
+    comp_source: str = ""  # where the compensation's parameters came from (--comp-from), in words
 
 
 def _say(message: str) -> None:
@@ -209,6 +210,12 @@ def _limits_text(opts: RunOptions, rate: int) -> str:
             f"device watchdog {opts.watchdog_ms} ms, trip after {lim.max_consecutive_overruns} overruns in a row")
 
 
+def _compensation_summary(opts: RunOptions, ctrl: Any) -> dict[str, Any]:
+    """What the summary says about the compensation: where its parameters came from, the adaptive estimate."""
+    adaptive = ctrl.compensator.adaptive
+    return {"comp_source": opts.comp_source, "fc_hat": None if adaptive is None else adaptive.fc_hat}
+
+
 def run_daemon(opts: RunOptions) -> int:
     """Run one session; returns the exit code (UserError propagates for exit 2)."""
     rig = opts.rig
@@ -221,6 +228,7 @@ def run_daemon(opts: RunOptions) -> int:
     mock_proc = None
     hw: SerialHardware | None = None
     result = None
+    ctrl = None
     mock_stats = ""
     log_ok = True
     # SIGTERM during start-up ends like Ctrl-C (KeyboardInterrupt: exit 130) so the cleanup below runs
@@ -279,6 +287,7 @@ def run_daemon(opts: RunOptions) -> int:
                 mock=json.dumps(opts.mock_args), duration=str(opts.duration), started=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                 link_timeout_ms=f"{opts.link_timeout_s * 1e3:g}", watchdog_ms=str(opts.watchdog_ms),
                 max_consecutive_overruns=str(limits.max_consecutive_overruns),
+                **({"comp_source": opts.comp_source} if opts.comp_source else {}),
             )
             children.log_q.put_nowait(("open", info.metadata(), run_meta))
         loop.event("INFO", f"device {info.ack.device_id:#010x} firmware {info.firmware} at {port}, {info.rate_hz} Hz, "
@@ -295,9 +304,10 @@ def run_daemon(opts: RunOptions) -> int:
             hw.stop()
             hw.close()
         children.stop_dashboard()
+        comp = _compensation_summary(opts, ctrl) if ctrl is not None else {}
         summary = "" if result is None else format_summary(result, rate_hz=rate, mode=opts.mode, rig=rig.name,
                                                             log_path=opts.log_path, limits=_limits_text(opts, rate),
-                                                            injected=mock_injections(opts.mock_args))
+                                                            injected=mock_injections(opts.mock_args), **comp)
         log_ok = children.close_logger(summary)
         if mock_proc is None and mock_start is not None:  # start-up failed elsewhere: do not leave it running
             with contextlib.suppress(Exception):
@@ -311,7 +321,7 @@ def run_daemon(opts: RunOptions) -> int:
         log_ticks = _ticks_on_disk(opts.log_path)
         summary = format_summary(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path,
                                  limits=_limits_text(opts, rate), log_ticks=log_ticks, log_incomplete=True,
-                                 injected=mock_injections(opts.mock_args))
+                                 injected=mock_injections(opts.mock_args), **comp)
     print(summary, flush=True)
     if mock_stats.strip():
         print("\n".join("  " + line for line in mock_stats.strip().splitlines()), flush=True)
@@ -320,7 +330,7 @@ def run_daemon(opts: RunOptions) -> int:
     if opts.summary_json:
         data = summary_dict(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path, warnings=warnings,
                             injected=mock_injections(opts.mock_args),
-                            log_ticks=log_ticks if not log_ok else result.ticks if opts.log_path else None)
+                            log_ticks=log_ticks if not log_ok else result.ticks if opts.log_path else None, **comp)
         Path(opts.summary_json).write_text(json.dumps(data, indent=1) + "\n")
     if result.end == "trip":
         return EXIT_TRIPPED

@@ -34,6 +34,8 @@ def render(snap: dict[str, Any] | None, title: str = "furuta-rt run") -> Panel:
     grid.add_row("θ", f"{math.degrees(snap['theta']):+7.2f}°  ({snap['theta']:+.4f} rad)",
                  "φ", f"{math.degrees(snap['phi']):+7.1f}°  ({snap['phi']:+.3f} rad)")
     grid.add_row("u", f"{snap['u']:+.4f}", "compensation", f"{snap['u_comp']:+.4f}  ({snap['mode']})")
+    if snap.get("mode") == "adaptive":
+        grid.add_row("", "", "Fc estimate", f"{snap.get('fc_hat', 0.0):.4f} N m")
     grid.add_row("loop rate", f"{snap['rate_hz']:7.1f} Hz", "jitter max", f"{snap['jitter_max_us']:7.0f} µs")
     grid.add_row("overruns", str(snap["overruns"]), "late commands", str(snap["late_commands"]))
     link_ok = snap["seq_gaps"] == 0 and snap["crc_errors"] == 0

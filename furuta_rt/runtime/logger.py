@@ -35,7 +35,7 @@ from furuta_rt.runtime.records import STATE_NAMES, TICK_RECORD
 _IDX = {name: i for i, name in enumerate(TICK_RECORD)}
 _TICK_KEYS = tuple((k, _IDX["state" if k == "mode" else k]) for k in TICK_FIELDS)  # mode: set below
 _TIMING_KEYS = tuple((k, _IDX[{"dropped_log_messages": "dropped"}.get(k, k)]) for k in TIMING_FIELDS)
-_STATE, _WALL, _DEV = _IDX["state"], _IDX["wall_ns"], _IDX["dev_ns"]
+_STATE, _WALL, _DEV, _SEQ, _FC = _IDX["state"], _IDX["wall_ns"], _IDX["dev_ns"], _IDX["seq"], _IDX["fc_hat"]
 
 
 @dataclass
@@ -92,6 +92,8 @@ class TickLog:
             ns = rec[_DEV] + offset
             w.tick(ns, tick)
             w.timing(ns, {k: rec[i] for k, i in _TIMING_KEYS})
+            if mode == "adaptive":
+                w.compensation(ns, rec[_SEQ], rec[_FC])
         self.ticks += len(batch)
 
     def event(self, wall_ns: int, level: str, message: str) -> None:

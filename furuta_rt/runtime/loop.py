@@ -203,12 +203,12 @@ class ControlLoop:
             self.event(level, f"{t.old.label} → {t.new.label}: {t.message} (seq {t.seq})")
 
     def _snapshot(self, now_ns: int, state: int, theta: float, phi: float, u: float, u_comp: float,
-                  win_ticks: int, win_start: int, win_max_dev: float) -> None:
+                  win_ticks: int, win_start: int, win_max_dev: float, fc_hat: float = 0.0) -> None:
         r = self.result
         span = (now_ns - win_start) * 1e-9
         snap = {
             "elapsed": (now_ns - self._perf0) * 1e-9, "state": STATE_NAMES[state], "mode": self.mode,
-            "theta": theta, "phi": phi, "u": u, "u_comp": u_comp,
+            "theta": theta, "phi": phi, "u": u, "u_comp": u_comp, "fc_hat": fc_hat,
             "rate_hz": win_ticks / span if span > 0 else 0.0, "jitter_max_us": win_max_dev,
             "overruns": r.overruns, "late_commands": r.late_commands, "seq_gaps": r.seq_gaps,
             "crc_errors": self.hw.crc_errors, "dropped": r.dropped_log_messages, "ticks": r.ticks,
@@ -267,6 +267,7 @@ class ControlLoop:
     def _run(self) -> None:
         st = self.settings
         hw, ctrl, sup, r = self.hw, self.ctrl, self.sup, self.result
+        comp = ctrl.compensator
         cal, tdo = self.cal, self.tdo
         nominal_us = 1e6 / st.rate_hz
         loss_timeout = st.link_timeout_s
@@ -415,7 +416,7 @@ class ControlLoop:
                     s.theta_adc, s.theta_dot_adc, s.phi_count, status,
                     theta, theta_dot, phi, phd, u, u_lin, u_comp, sat, int(state), reset,
                     period_us, read_us, update_us, write_us, latency_us, lateness_us,
-                    r.overruns, r.seq_gaps, hw.crc_errors, r.dropped_log_messages,
+                    r.overruns, r.seq_gaps, hw.crc_errors, r.dropped_log_messages, comp.coulomb_level,
                 ))
                 if len(self._batch) >= batch_ticks:
                     self._flush_batch()
@@ -428,7 +429,8 @@ class ControlLoop:
                 if dev > win_max:
                     win_max = dev
                 if win_ticks >= snap_ticks:
-                    self._snapshot(t4, int(state), theta, phi, u, u_comp, win_ticks, win_start, win_max)
+                    self._snapshot(t4, int(state), theta, phi, u, u_comp, win_ticks, win_start, win_max,
+                                   comp.coulomb_level)
                     win_ticks, win_start, win_max = 0, t4, 0.0
             if state is _TRIPPED:
                 r.end = "trip"

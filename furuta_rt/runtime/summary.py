@@ -81,9 +81,11 @@ def _num(x: float) -> float | None:
 
 
 def summary_dict(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path: str | None,
-                 warnings: list[str], log_ticks: int | None = None, injected: Sequence[str] = ()) -> dict[str, Any]:
+                 warnings: list[str], log_ticks: int | None = None, injected: Sequence[str] = (),
+                 comp_source: str = "", fc_hat: float | None = None) -> dict[str, Any]:
     """All figures of the run as one JSON-able dict (``--summary-json``; ``log_ticks``: the ticks the log
-    holds, fewer than ``ticks`` when it is incomplete; ``injected``: mock_injections)."""
+    holds, fewer than ``ticks`` when it is incomplete; ``injected``: mock_injections; ``comp_source``: where the
+    compensation's parameters came from (--comp-from); ``fc_hat``: the adaptive Coulomb estimate at the end)."""
     def hist(h: Any) -> dict[str, float | None]:
         return {k: _num(v) for k, v in h.summary().items()}
 
@@ -105,6 +107,7 @@ def summary_dict(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path
         "mean_u_comp": _num(r.u_comp.mean) if r.u_comp.n else None, "std_u_comp": _num(r.u_comp.std),
         "limit_cycle_phi": asdict(lc_phi) if lc_phi else None, "limit_cycle_theta": asdict(lc_theta) if lc_theta else None,
         "mock_injected": list(injected),
+        "comp_source": comp_source or None, "fc_hat": fc_hat,
         "log": log_path, "log_ticks": log_ticks, "warnings": warnings,
         "events": [{"wall_ns": t, "level": lvl, "message": m} for t, lvl, m in r.events],
     }
@@ -133,7 +136,8 @@ def _injected_line(injected: Sequence[str]) -> str | None:
 
 
 def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path: str | None, limits: str = "",
-                   log_ticks: int | None = None, log_incomplete: bool = False, injected: Sequence[str] = ()) -> str:
+                   log_ticks: int | None = None, log_incomplete: bool = False, injected: Sequence[str] = (),
+                   comp_source: str = "", fc_hat: float | None = None) -> str:
     """The human-readable summary printed at the end of every run (``limits``: the safety limits used;
     ``log_incomplete``: the logger failed and the log holds ``log_ticks`` ticks, None: unreadable;
     ``injected``: what the mock was told to simulate, mock_injections)."""
@@ -152,6 +156,10 @@ def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_pa
         f"own overruns {r.device_overruns}; seq gaps {r.seq_gaps}, CRC errors {r.crc_errors}, "
         f"log drops {r.dropped_log_messages}",
     ]
+    if comp_source:
+        lines.append(f"  compensation: {comp_source}")
+    if fc_hat is not None:
+        lines.append(f"  adaptive Coulomb estimate at the end: Fc {fc_hat:.4f} N m")
     if r.theta.n > 1:
         lines.append(
             f"  balancing (after its first second): std θ {r.theta.std:.5f} rad, std φ {r.phi.std:.5f} rad, "

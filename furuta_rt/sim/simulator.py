@@ -19,6 +19,7 @@ Without friction or input the scheme is plain RK4 on a Hamiltonian system: energ
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from collections.abc import Callable
@@ -26,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from furuta_rt.model.friction import Coulomb, CoulombStiction
+from furuta_rt.model.friction import Coulomb, CoulombStiction, JointFriction
 from furuta_rt.model.rig import RigModel
 from furuta_rt.model.sensors import Calibration, Measurement
 
@@ -77,14 +78,7 @@ class Simulator:
         self._delay_line: deque[float] = deque([0.0] * n_delay)
         p = model.plant.p
         self._alpha, self._beta, self._gamma, self._eps = p.alpha, p.beta, p.gamma, p.epsilon
-        af = model.arm_friction
-        self._fv_arm = af.viscous.Fv if af.viscous else 0.0
-        dry = af.dry
-        self._fc = dry.sliding_level if isinstance(dry, Coulomb | CoulombStiction) else 0.0
-        self._fs = dry.stick_limit if isinstance(dry, Coulomb | CoulombStiction) else 0.0
-        self._set_valued = dry is not None and not (isinstance(dry, Coulomb) and dry.epsilon > 0)
-        self._smooth_dry = dry if (dry is not None and not self._set_valued) else None
-        self._lugre = af.lugre
+        self._use_arm_friction(model.arm_friction)
         pf = model.pendulum_friction
         self._bp = pf.viscous.Fv if pf.viscous else 0.0
         self._pend_dry = pf.dry
@@ -129,6 +123,25 @@ class Simulator:
     def set_command(self, command: float) -> None:
         """The actuator command (N m or V) from now on (the actuator's own delay still applies)."""
         self.command = float(command)
+
+    def set_arm_friction(self, friction: JointFriction) -> None:
+        """Change the arm's friction from now on (a worn or re-greased bearing: hil_mock's friction_step fault)."""
+        self.model = dataclasses.replace(self.model, arm_friction=friction)
+        self._use_arm_friction(friction)
+        self._rhs = self._make_rhs()
+        if friction.lugre is None:
+            self.z = 0.0
+        if friction.dry is None:
+            self.stuck = False
+
+    def _use_arm_friction(self, af: JointFriction) -> None:
+        self._fv_arm = af.viscous.Fv if af.viscous else 0.0
+        dry = af.dry
+        self._fc = dry.sliding_level if isinstance(dry, Coulomb | CoulombStiction) else 0.0
+        self._fs = dry.stick_limit if isinstance(dry, Coulomb | CoulombStiction) else 0.0
+        self._set_valued = dry is not None and not (isinstance(dry, Coulomb) and dry.epsilon > 0)
+        self._smooth_dry = dry if (dry is not None and not self._set_valued) else None
+        self._lugre = af.lugre
 
     # ------------------------------------------------------------ dynamics
     def _make_rhs(self) -> Callable[..., tuple[float, float, float, float]]:
