@@ -30,13 +30,8 @@ static const fw_board_t board = {
     BOARD_ADC_MIN, BOARD_ADC_MAX, BOARD_ADC_MIN, BOARD_ADC_MAX,
 };
 
-void TIM5_IRQHandler(void);
-void USART2_IRQHandler(void);
 void bench_mark(uint32_t tick);
 int main(void);
-
-void TIM5_IRQHandler(void) {}
-void USART2_IRQHandler(void) {}
 
 int32_t hal_encoder_count(fw_hal_t *h) { return h->phi; }
 uint8_t hal_encoder_fault(fw_hal_t *h) { return h->encoder_fault; }

@@ -105,6 +105,9 @@
 /* core: NVIC, DWT cycle counter, unique id */
 #define NVIC_ISER(n) REG32(0xE000E100u + 4u * (n))
 #define NVIC_IPR8(irq) (*(volatile uint8_t *)(uintptr_t)(0xE000E400u + (irq)))
+#define SYST_CSR REG32(0xE000E010u) /* SysTick: ENABLE bit 0, TICKINT bit 1, CLKSOURCE (CPU) bit 2 */
+#define SYST_RVR REG32(0xE000E014u)
+#define SYST_CVR REG32(0xE000E018u)
 #define DEMCR REG32(0xE000EDFCu)
 #define DWT_CTRL REG32(0xE0001000u)
 #define DWT_CYCCNT REG32(0xE0001004u)

@@ -10,8 +10,10 @@ extern uint32_t _sidata, _sdata, _edata, _sbss, _ebss, _estack;
 int main(void);
 void Reset_Handler(void);
 void Default_Handler(void);
-void TIM5_IRQHandler(void);
-void USART2_IRQHandler(void);
+/* Handlers a board defines; where it does not, the default one. */
+void SysTick_Handler(void) __attribute__((weak, alias("Default_Handler")));
+void TIM5_IRQHandler(void) __attribute__((weak, alias("Default_Handler")));
+void USART2_IRQHandler(void) __attribute__((weak, alias("Default_Handler")));
 
 void Reset_Handler(void)
 {
@@ -48,7 +50,7 @@ typedef struct {
 __attribute__((section(".isr_vector"), used)) const vector_table_t vector_table = {
     &_estack,
     {
-        Reset_Handler, D2, D4, D8,  /* exceptions 1..15 */
+        Reset_Handler, D2, D4, D4, D2, D, SysTick_Handler, /* exceptions 1..15 */
         D32, D4, D2,                /* IRQ 0..37 */
         USART2_IRQHandler,          /* IRQ 38 */
         D8, D2, D,                  /* IRQ 39..49 */
