@@ -232,7 +232,7 @@ class SwingUpConfig(_Section):
     catch_energy: Positive = Field(default=0.1, description="|E − E_up| below which balancing takes over, × 2ε")
     fall_theta: Positive | None = Field(default=None, description="|θ| beyond which balancing has lost it, rad "
                                         "(default safety.theta_limit)")
-    arm_return_s: Positive = Field(default=2.0, description="after the catch, the arm's reference goes from where "
+    arm_return_s: Positive = Field(default=1.0, description="after the catch, the arm's reference goes from where "
                                    "it was caught back to 0 with this time constant, s")
     on_fall: Literal["swing_up", "trip"] = Field(default="swing_up", description="after a fall: swing up again or trip")
     calibration_s: Annotated[float, Field(gt=0.0, le=10.0)] = Field(

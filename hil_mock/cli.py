@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import signal
 import sys
@@ -42,6 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--watchdog-ms", type=int, metavar="MS", help="device watchdog (default 20)")
     p.add_argument("--seed", type=int, help="sensor-noise seed (default 0)")
     p.add_argument("--initial-theta", type=float, metavar="RAD", help="pendulum angle at release (default 0.05)")
+    p.add_argument("--start", choices=("upright", "hanging"),
+                   help="where the pendulum is at release: upright (θ = --initial-theta, default) or hanging at rest "
+                   "(θ = π, for a swing-up)")
     p.add_argument("--substep-hz", type=float, metavar="HZ", help="physics substep rate (default 10000)")
     p.add_argument("--pacing", choices=("realtime", "free", "lockstep"), help="default realtime")
     p.add_argument("--spin-us", type=float, metavar="US", help="busy-wait before each deadline (default 100)")
@@ -50,7 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--firmware", choices=("python", "c"),
                    help="device logic: python (default) or c, the microcontroller's C core built for this machine")
     p.add_argument("--fault", action="append", default=[], metavar="KIND@T[:DUR]",
-                   help="scheduled fault, e.g. stall@2.0:100ms, reset@3, disconnect@5, mute@1:50ms, deaf@1:50ms")
+                   help="scheduled fault, e.g. stall@2.0:100ms, reset@3, disconnect@5, mute@1:50ms, deaf@1:50ms, "
+                        "push@4 (an impulse on the pendulum; push@4:8 = θ̇ jumps 8 rad/s)")
     p.add_argument("--corrupt-rate", type=float, metavar="P", help="flip a bit in each device→host byte with probability P")
     p.add_argument("--drop-rate", type=float, metavar="P", help="drop each device→host byte with probability P")
     p.add_argument("--rx-corrupt-rate", type=float, metavar="P", help="the same for host→device bytes")
@@ -65,6 +70,14 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _initial_theta(args: argparse.Namespace) -> float | None:
+    if args.start == "hanging":
+        if args.initial_theta is not None:
+            raise UserError("--start hanging and --initial-theta contradict each other; give one of them")
+        return math.pi
+    return args.initial_theta
+
+
 def config_from_args(args: argparse.Namespace) -> MockConfig:
     return build_config(
         args.config,
@@ -73,7 +86,7 @@ def config_from_args(args: argparse.Namespace) -> MockConfig:
         faults=args.fault,
         device={
             "rate_hz": args.rate, "watchdog_ms": args.watchdog_ms, "seed": args.seed,
-            "initial_theta": args.initial_theta, "substep_hz": args.substep_hz, "pacing": args.pacing,
+            "initial_theta": _initial_theta(args), "substep_hz": args.substep_hz, "pacing": args.pacing,
             "spin_us": args.spin_us, "priority": args.priority, "firmware": args.firmware,
         },
         fault_settings={

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import math
 import os
 import queue
 import select
@@ -85,6 +86,7 @@ class DeviceStats:
     plant_s: float
     friction_steps: int = 0
     arm_coulomb: float = 0.0  # the arm's Coulomb level at the end (after any friction_step), N m
+    pushes: int = 0
 
     @property
     def realtime_factor(self) -> float:
@@ -106,7 +108,7 @@ class DeviceStats:
             f"{self.commands_discarded}, watchdog trips {self.watchdog_trips}, rx frames {self.frames_rx} crc errors "
             f"{self.crc_errors} frame errors {self.frame_errors}, handshakes {self.handshakes} (refused "
             f"{self.handshakes_refused}), hangups {self.hangups}, tx frames dropped {self.tx_frames_dropped}",
-            f"hil-mock: faults: resets {self.resets}, stalls {self.stalls}, tx bytes corrupted "
+            f"hil-mock: faults: resets {self.resets}, stalls {self.stalls}, pushes {self.pushes}, tx bytes corrupted "
             f"{self.tx_bytes_corrupted} dropped {self.tx_bytes_dropped}, rx bytes corrupted {self.rx_bytes_corrupted} "
             f"dropped {self.rx_bytes_dropped}"
             + (f", friction steps {self.friction_steps} (arm Coulomb now {self.arm_coulomb:g} N m)"
@@ -152,6 +154,7 @@ class VirtualDevice:
         self.disconnected = False
         self.tx_frames_dropped = 0
         self.stalls = 0
+        self.pushes = 0
         self.priority = "normal"
         threshold = dev.late_threshold_us * 1e-6 if dev.late_threshold_us else 0.25 / self.firmware.rate_hz
         self.timing = TickTiming(threshold)
@@ -227,6 +230,12 @@ class VirtualDevice:
         """Lose every host→device byte for ``seconds``."""
         self._actions.put(lambda: self._timed_flag("deafened", seconds))
 
+    def push(self, theta_dot_jump: float = 0.0) -> None:
+        """An impulse on the pendulum: θ̇ jumps by ``theta_dot_jump`` rad/s (0: 2·√(ε/α), a full turn's energy)."""
+        p = self.firmware.sim.model.plant.p
+        self.firmware.sim.theta_dot += theta_dot_jump or 2.0 * math.sqrt(p.epsilon / p.alpha)
+        self.pushes += 1
+
     def _do_stall(self, seconds: float) -> None:
         self.stalls += 1
         time.sleep(seconds)
@@ -270,6 +279,8 @@ class VirtualDevice:
                 values = dict(ev.params)
                 fw.set_arm_coulomb(values["Fc"], values.get("Fs"))
                 self.friction_steps += 1
+            elif ev.kind == "push":
+                self.push(ev.duration)
             elif ev.kind.startswith("end_"):
                 setattr(self.link, ev.kind[4:], False)
 
@@ -475,4 +486,5 @@ class VirtualDevice:
             plant_s=fw.plant_time,
             friction_steps=self.friction_steps,
             arm_coulomb=fw.model.arm_friction.dry.sliding_level if fw.model.arm_friction.dry is not None else 0.0,
+            pushes=self.pushes,
         )

@@ -14,6 +14,8 @@ first handshake, duration as ``100ms``, ``0.1s`` or ``0.1`` (seconds):
     deaf@2.0:50ms       every host→device byte is lost for the duration (the watchdog will trip)
     friction_step@8:Fc=0.5   the arm's Coulomb friction becomes 0.5 N m from then on (a bearing that wears or
                         is re-greased; the adaptive compensation has to follow). Fs=… (breakaway, ≥ Fc) too.
+    push@4.0[:DV]       an impulse on the pendulum: θ̇ jumps by DV rad/s (default 2·√(ε/α), enough to knock a
+                        balanced pendulum over: the energy of a full turn)
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import random
 import re
 from dataclasses import dataclass
 
-FAULT_KINDS = ("stall", "reset", "disconnect", "mute", "deaf", "friction_step")
+FAULT_KINDS = ("stall", "reset", "disconnect", "mute", "deaf", "friction_step", "push")
 _NEEDS_DURATION = ("stall", "mute", "deaf")
 FRICTION_STEP_PARAMS = ("Fc", "Fs")
 """What ``friction_step@T:NAME=V[,NAME=V]`` may set: the arm's Coulomb (sliding) level and its breakaway."""
@@ -36,7 +38,7 @@ class FaultEvent:
 
     kind: str
     at: float
-    duration: float = 0.0
+    duration: float = 0.0  # s; for a push, the θ̇ jump in rad/s (0: the default)
     params: tuple[tuple[str, float], ...] = ()  # friction_step: (name, value) pairs
 
     def __str__(self) -> str:
@@ -101,6 +103,10 @@ def parse_fault(text: str) -> FaultEvent:
         raise ValueError(f"fault {text!r}: time and duration must be >= 0")
     if kind in _NEEDS_DURATION and duration <= 0:
         raise ValueError(f"fault {text!r}: {kind} needs a duration, e.g. {kind}@{at:g}:100ms")
+    if kind == "push":
+        if m["unit"]:
+            raise ValueError(f"fault {text!r}: push takes a θ̇ jump in rad/s, e.g. push@{at:g}:8, not a duration")
+        return FaultEvent(kind, at, float(m["dur"]) if m["dur"] else 0.0)
     if kind not in _NEEDS_DURATION and m["dur"]:
         raise ValueError(f"fault {text!r}: {kind} takes no duration")
     return FaultEvent(kind, at, duration)

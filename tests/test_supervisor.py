@@ -8,6 +8,7 @@ import pytest
 
 from firmware_protocol import StatusFlags
 from furuta_rt.config import load_rig
+from furuta_rt.io.log_schema import TICK_FIELDS
 from furuta_rt.runtime.supervisor import STATE_NAMES, State, Supervisor, SupervisorLimits, TripReason
 
 LIMITS = SupervisorLimits(theta_limit=0.5, phi_limit=18.85, arm_theta=0.1, max_consecutive_overruns=5, settle_ticks=3)
@@ -25,7 +26,8 @@ def balancing() -> Supervisor:
 
 
 def test_state_names_are_the_logged_enum() -> None:
-    assert STATE_NAMES == ("idle", "armed", "balancing", "tripped")
+    assert STATE_NAMES == ("idle", "armed", "balancing", "tripped", "calibrating", "swinging_up")
+    assert list(STATE_NAMES) == TICK_FIELDS["state"]["enum"]
 
 
 def test_limits_from_the_rig_config() -> None:

@@ -135,16 +135,23 @@ def test_catch_energy_gate_refuses_a_fast_pass_through_upright() -> None:
 
 
 def test_catch_takes_the_arm_back_from_where_it_was_caught() -> None:
-    """Bumpless in φ: the balancing law starts from the arm where it was caught (no L3·φ step) and the reference
-    returns to 0 with arm_return_s (2 s): u = L4·φ_c/2 s at the catch."""
+    """Bumpless in φ: the balancing law starts from the arm where it was caught, at its speed (no L3·φ or L4·φ̇ step),
+    and the reference returns to 0 critically damped with ω = 1/arm_return_s (1 s)."""
     rig = swing_rig("thesis")
     ctrl = Controller.from_rig(rig)
     ctrl.reset(3.0)
+    ctrl.observer.reset(3.0, 1.5)  # the arm caught at 3 rad moving at 1.5 rad/s
     out = ctrl.update(Measurement(0.0, 0.0, 0.0, 3.0))
     assert not out.swinging
-    l4 = ctrl.gains[3]
-    assert out.u_lin == pytest.approx(l4 * 3.0 / 2.0)  # only the reference's return speed, not L3·3 rad = 2.2 N m
-    assert ctrl.phi_ref == pytest.approx(3.0 * math.exp(-1.0 / (rig.control.rate_hz * 2.0)))
+    assert out.u_lin == pytest.approx(0.0, abs=1e-12)  # not L3·3 rad + L4·1.5 rad/s = 2.9 N m
+    h, w = 1.0 / rig.control.rate_hz, 1.0
+    ref_dot = 1.5 - h * w * (w * 3.0 + 2.0 * 1.5)
+    assert (ctrl.phi_ref, ctrl.phi_dot_ref) == pytest.approx((3.0 + h * ref_dot, ref_dot))
+    for k in range(1, 6 * round(rig.control.rate_hz)):  # 6 s: the reference has come back
+        ctrl.update(Measurement(k * h, 0.0, 0.0, ctrl.phi_ref))
+    t = 6.0  # critically damped from (3, 1.5): r = (3 + 4.5 t) e^−t, ṙ = (1.5 − 4.5 t) e^−t
+    assert ctrl.phi_ref == pytest.approx((3.0 + 4.5 * t) * math.exp(-t), rel=0.02)
+    assert ctrl.phi_dot_ref == pytest.approx((1.5 - 4.5 * t) * math.exp(-t), rel=0.02)
 
 
 def test_encoder_theta_counting_turns_is_wrapped() -> None:

@@ -2,6 +2,7 @@
 
     furuta-rt run --mock --duration 10                 balance the simulated pendulum (no hardware)
     furuta-rt run --port /dev/ttyACM0 --log run.mcap   the rig
+    furuta-rt run --mock --swing-up                    calibrate hanging, swing up, catch and balance
 
 Exit codes: 0 duration reached or operator stop (SIGINT/SIGTERM: u = 0 sent, log closed, summary
 printed) after the pendulum balanced; 1 the safety supervisor tripped (reason printed); 2 user error
@@ -47,6 +48,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "an existing file only with --force")
     p.add_argument("--force", action="store_true", help="replace an existing --log file (it is replaced when the "
                    "device has answered, not before)")
+    p.add_argument("--swing-up", action="store_true", help="start from the pendulum hanging at rest: calibrate θ's zero "
+                   "(~1 s still), swing up by energy control, catch and balance; a fall swings up again (the rig's "
+                   "swing_up.on_fall); with --mock the mock starts hanging")
     p.add_argument("--comp", choices=COMP_MODES, help="friction compensation (default: the config's compensation.mode); "
                    "adaptive: Coulomb compensation whose level is estimated online while balancing")
     p.add_argument("--comp-from", metavar="REPORT.json", help="compensate the arm friction that `furuta-rt diagnose "
@@ -75,8 +79,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--mock-fault", action="append", default=[], metavar="KIND@T[:DUR]",
                    help="scheduled device fault, e.g. mute@3:100ms, disconnect@5 (repeatable)")
     m.add_argument("--mock-seed", type=int, metavar="N", help="sensor-noise seed of the mock")
-    m.add_argument("--mock-initial-theta", type=float, metavar="RAD", default=0.05,
-                   help="pendulum angle when the mock starts (default 0.05 rad: arms at once)")
+    m.add_argument("--mock-initial-theta", type=float, metavar="RAD",
+                   help="pendulum angle when the mock starts (default 0.05 rad: arms at once; with --swing-up it "
+                   "starts hanging)")
     m.add_argument("--mock-firmware", choices=("python", "c"),
                    help="the mock's device logic: python (default) or c, the DAQ firmware's C core built for this machine")
     m.add_argument("--mock-arg", action="append", default=[], metavar="ARG",
@@ -84,20 +89,40 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def effective_rig(rig: RigConfig, rate: int | None, mode: str | None, gains: list[float] | None) -> RigConfig:
-    """The rig as this run uses it (what the log records): --rate, --comp and --gains applied."""
+def effective_rig(rig: RigConfig, rate: int | None, mode: str | None, gains: list[float] | None,
+                  swing_up: bool = False) -> RigConfig:
+    """The rig as this run uses it (what the log records): --rate, --comp, --gains and --swing-up applied."""
     control = rig.control
     if rate is not None:
         control = control.model_copy(update={"rate_hz": float(rate)})
     if gains is not None:
         control = control.model_copy(update={"design": "gains", "gains": list(gains)})
     comp = rig.compensation if mode is None else rig.compensation.model_copy(update={"mode": mode})
-    return rig.model_copy(update={"control": control, "compensation": comp})
+    up = rig.swing_up.model_copy(update={"enabled": True}) if swing_up else rig.swing_up
+    return rig.model_copy(update={"control": control, "compensation": comp, "swing_up": up})
+
+
+def check_swing_up(rig: RigConfig) -> None:
+    """A swing-up needs θ read through hanging (π) and a consistent catch/fall; else one line naming the key."""
+    from furuta_rt.control.swingup import SwingUpDesign
+
+    s = rig.sensors
+    reach = 32767 * s.theta_rad_per_count
+    if not s.theta_wraps and reach < math.pi + rig.swing_up.hanging_tolerance:
+        raise UserError(f"--swing-up: rig '{rig.name}' reads θ only up to ±{reach:.3f} rad (sensors.theta_wraps = false) "
+                        "and the pendulum hangs at π; set sensors.theta_wraps = true if θ's sensor reads the full turn")
+    try:
+        SwingUpDesign.from_rig(rig)
+    except ValueError as err:
+        raise UserError(f"--swing-up: {err}") from None
 
 
 def mock_arguments(args: argparse.Namespace, rig_source: str, rate: int, watchdog_ms: int) -> list[str]:
-    out = ["--rig", rig_source, "--rate", str(rate), "--watchdog-ms", str(watchdog_ms),
-           "--initial-theta", repr(args.mock_initial_theta)]
+    out = ["--rig", rig_source, "--rate", str(rate), "--watchdog-ms", str(watchdog_ms)]
+    if args.mock_initial_theta is not None:
+        out += ["--initial-theta", repr(args.mock_initial_theta)]
+    else:
+        out += ["--start", "hanging"] if args.swing_up else ["--initial-theta", "0.05"]
     for e in args.mock_effect:
         out += ["--effect", e]
     for f in args.mock_fault:
@@ -148,7 +173,10 @@ def run(args: argparse.Namespace) -> int:
         found = compensation_from_report(args.comp_from, rig.compensation, rig.name)
         rig = rig.model_copy(update={"compensation": found.compensation})
         comp_source, warnings = found.source, list(found.warnings)
-    rig = effective_rig(rig, args.rate, args.comp, gains)
+    rig = effective_rig(rig, args.rate, args.comp, gains, args.swing_up)
+    if rig.swing_up.enabled:
+        check_swing_up(rig)
+    args.swing_up = rig.swing_up.enabled  # the mock starts hanging (mock_arguments)
     rate_f = rig.control.rate_hz
     if rate_f != int(rate_f):
         raise UserError(f"control.rate_hz = {rate_f:g}: the device needs a whole number of Hz; pass --rate")

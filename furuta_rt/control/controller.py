@@ -96,13 +96,16 @@ class Controller:
         self._started = False
         self.swing_up = swing_up
         self.swinging = swing_up is not None
-        self.phi_ref = 0.0  # after a catch: the arm's reference, from where it was caught back to 0
-        self._ref_decay = 1.0
-        self._ref_rate = 0.0
+        # after a catch: the arm's reference (φ_r, φ̇_r) starts where the arm was caught, at its speed, and returns
+        # to 0 critically damped (ω = 1/arm_return_s): balancing does not fight the arm's position or momentum
+        self.phi_ref = 0.0
+        self.phi_dot_ref = 0.0
+        self._ref_w = 0.0
+        self._ref_h = 0.0
         if swing_up is not None:
             d = swing_up.design
-            self._ref_decay = math.exp(-d.period / d.arm_return_s)
-            self._ref_rate = 1.0 / d.arm_return_s
+            self._ref_w = 1.0 / d.arm_return_s
+            self._ref_h = d.period
         od = observer.design  # arm torque (N m) per rad of innovation: velocity correction / speed per N m per tick
         self._torque_per_innovation = float(od.K[1] / od.Bd[1, 1]) / command_per_torque
 
@@ -143,7 +146,7 @@ class Controller:
         for i in range(len(self._pending)):
             self._pending[i] = 0.0
         self._started = True
-        self.phi_ref = 0.0
+        self.phi_ref = self.phi_dot_ref = 0.0
         if self.swing_up is not None:
             self.swing_up.reset()
             self.swinging = True
@@ -163,7 +166,7 @@ class Controller:
             if self.swinging and su.catchable(m.theta, m.theta_dot):
                 self.swinging = False
                 obs.reset(m.phi, obs.phi_dot)  # bumpless: φ from the measurement, φ̂̇ as tracked
-                self.phi_ref = m.phi  # the arm is taken back to 0 from where it was caught
+                self.phi_ref, self.phi_dot_ref = m.phi, obs.phi_dot  # the arm is taken back to 0 from where it was
             elif not self.swinging and su.fallen(m.theta):
                 self.swinging = True
                 su.reset()
@@ -176,10 +179,13 @@ class Controller:
         if self.swinging:
             u_lin = su.command(m.theta, m.theta_dot, m.phi, phi_dot)  # type: ignore[union-attr]
         else:
-            ref = self.phi_ref
+            ref, ref_dot = self.phi_ref, self.phi_dot_ref
             u_lin = (self.l1 * m.theta + self.l2 * m.theta_dot + self.l3 * (m.phi - ref)
-                     + self.l4 * (phi_dot + ref * self._ref_rate))
-            self.phi_ref = ref * self._ref_decay
+                     + self.l4 * (phi_dot - ref_dot))
+            if ref != 0.0 or ref_dot != 0.0:
+                w, h = self._ref_w, self._ref_h
+                ref_dot -= h * w * (w * ref + 2.0 * ref_dot)
+                self.phi_ref, self.phi_dot_ref = ref + h * ref_dot, ref_dot
         u_comp = self.compensator(phi_dot, u_lin / self.command_per_torque) * self.command_per_torque
         u = u_lin + u_comp
         lim = self.u_limit

@@ -22,13 +22,16 @@ Metadata records:
   "rig"     {"name": ..., "toml": <the rig config as TOML text>, "json": <RigConfig JSON>}
   "run"     {"mode": compensation mode, "gains": "[l1,l2,l3,l4]" JSON, "rate_hz": ..., "port": ..., "version": ...}
   "device"  the HELLO_ACK fields (calibration) as strings
+  "calibration" (a --swing-up run, written when taken) {"theta_zero": ..., "phi_zero": ..., ...}: the start-up
+            calibration (furuta_rt.runtime.calibration); the ticks' theta and phi are the device's readings before it
   "time_base" {"clock": "wall", "device_offset_ns": ..., "device_t0_ns": ..., "wall_t0_ns": ..., "mapped_at": ...}
             (a converted recording: {"clock": ..., "offset_ns": ...}, its own time column plus offset)
 Attachment "rig.toml" carries the same config as a file.
 
 Replay rule: for each /furuta/tick in order, build Measurement(t, theta, theta_dot, phi) from the logged SI values;
-if ``reset`` is true call Controller.reset(phi) first; then call Controller.update if ``state == "balancing"``
-else Controller.hold. The logged ``u`` must come out bit-identical.
+if ``reset`` is true call Controller.reset(phi) first; then call Controller.update if ``state`` is "balancing" or
+"swinging_up", else Controller.hold. With a "calibration" record, θ and φ from the first swinging_up/balancing tick
+on are first calibrated (θ = wrap(θ − theta_zero), φ − phi_zero). The logged ``u`` must come out bit-identical.
 """
 
 from __future__ import annotations
@@ -65,7 +68,7 @@ TICK_FIELDS: dict[str, dict[str, Any]] = {
     "u_lin": _NUM,  # L·x part
     "u_comp": _NUM,  # friction compensation part
     "saturated": {"type": "boolean"},
-    "state": {"type": "string", "enum": ["idle", "armed", "balancing", "tripped"]},
+    "state": {"type": "string", "enum": ["idle", "armed", "balancing", "tripped", "calibrating", "swinging_up"]},
     "reset": {"type": "boolean"},  # Controller.reset(phi) was called before this tick's update
     "mode": {"type": "string"},  # compensation mode
 }

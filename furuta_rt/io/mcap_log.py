@@ -111,6 +111,10 @@ class LogWriter:
         self._writer = w
         self._closed = False
 
+    def metadata(self, name: str, data: Mapping[str, str]) -> None:
+        """A metadata record written during the run (e.g. "calibration", once it is taken)."""
+        self._writer.add_metadata(name, dict(data))
+
     def time_base(self, mapping: Mapping[str, str]) -> None:
         """The "time_base" metadata: how the messages' times relate to the device clock (log_schema)."""
         self._writer.add_metadata(ls.TIME_BASE_METADATA, dict(mapping))

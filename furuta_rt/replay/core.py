@@ -2,7 +2,8 @@
 
 The replay rule of furuta_rt.io.log_schema: for each tick in order, Measurement(t, θ, θ̇, φ) from the
 logged SI values; ``reset`` true → Controller.reset(φ) first; Controller.update when the supervisor
-state was "balancing", else Controller.hold (u = 0). With the logged rig, mode and gains the replayed u
+state was "balancing" or "swinging_up" (a --swing-up log: its start-up calibration applied first), else
+Controller.hold (u = 0). With the logged rig, mode and gains the replayed u
 must equal the logged u bit for bit (the determinism check); with others it is what that controller
 would have commanded on the same data (the plant did not see it: no feedback through the plant).
 """
@@ -19,6 +20,7 @@ from furuta_rt.config import CompMode, RigConfig
 from furuta_rt.control.controller import Controller, Measurement
 from furuta_rt.errors import UserError
 from furuta_rt.io.mcap_read import LogData, require_ticks
+from furuta_rt.runtime.calibration import CALIBRATION_METADATA, StartupCalibration
 
 
 @dataclass
@@ -64,6 +66,17 @@ class ReplayResult:
         return f"replayed with mode {self.mode}, gains {list(self.gains)}: u {diff} from the logged run"
 
 
+def apply_startup_calibration(log: LogData, active: np.ndarray, theta: list[float], phi: list[float]) -> None:
+    """A --swing-up log's start-up calibration (its "calibration" metadata) applied in place to θ and φ from the
+    first tick the controller drove on, as the daemon applied it (furuta_rt.runtime.calibration)."""
+    meta = log.metadata.get(CALIBRATION_METADATA)
+    if not meta or not active.any():
+        return
+    cal = StartupCalibration.from_metadata(meta)
+    for k in range(int(np.argmax(active)), len(theta)):
+        theta[k], phi[k] = cal.apply(theta[k], phi[k])
+
+
 def replay_log(
     log: LogData,
     *,
@@ -88,7 +101,8 @@ def replay_log(
     )
     tk = log.ticks
     t_l, th_l, thd_l, ph_l = (tk[k].tolist() for k in ("t", "theta", "theta_dot", "phi"))
-    balancing = tk["state"] == "balancing"
+    balancing = (tk["state"] == "balancing") | (tk["state"] == "swinging_up")  # the controller drove the actuator
+    apply_startup_calibration(log, balancing, th_l, ph_l)
     bal_l, reset_l = balancing.tolist(), tk["reset"].tolist()
     u = [0.0] * n
     u_lin = [0.0] * n

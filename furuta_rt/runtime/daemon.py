@@ -198,7 +198,7 @@ def _stop_mock(proc: Any) -> str:
 def _limits(opts: RunOptions, rate: int) -> Any:
     from furuta_rt.runtime.supervisor import SupervisorLimits
 
-    limits = SupervisorLimits.from_config(opts.rig.safety, rate)
+    limits = SupervisorLimits.from_config(opts.rig.safety, rate, opts.rig.swing_up)
     if opts.max_overruns is not None:
         limits = dataclasses.replace(limits, max_consecutive_overruns=opts.max_overruns)
     return limits
@@ -279,6 +279,7 @@ def run_daemon(opts: RunOptions) -> int:
                          batch_ticks=max(1, rate // 10), snapshot_ticks=max(1, rate // 10)),
             full_scale=info.full_scale, theta_dot_offset_counts=info.theta_dot_offset_counts,
             calibration=info.calibration, log=children.log_q, dashboard=children.dash_q, mode=opts.mode,
+            swing_up=rig.swing_up if rig.swing_up.enabled else None,
             on_event=None if opts.tui else (lambda level, msg: _say(msg if level == "INFO" else f"{level.lower()}: {msg}")),
         )
         if children.log_q is not None:
@@ -288,6 +289,7 @@ def run_daemon(opts: RunOptions) -> int:
                 link_timeout_ms=f"{opts.link_timeout_s * 1e3:g}", watchdog_ms=str(opts.watchdog_ms),
                 max_consecutive_overruns=str(limits.max_consecutive_overruns),
                 **({"comp_source": opts.comp_source} if opts.comp_source else {}),
+                swing_up=str(rig.swing_up.enabled).lower(),
             )
             children.log_q.put_nowait(("open", info.metadata(), run_meta))
         loop.event("INFO", f"device {info.ack.device_id:#010x} firmware {info.firmware} at {port}, {info.rate_hz} Hz, "
@@ -336,6 +338,9 @@ def run_daemon(opts: RunOptions) -> int:
         return EXIT_TRIPPED
     if not log_ok:
         return EXIT_LOG_INCOMPLETE
+    if result.balancing_ticks == 0 and rig.swing_up.enabled:
+        _say(f"error: the pendulum never balanced: the swing-up never reached the catch region; exit {EXIT_NEVER_BALANCED}")
+        return EXIT_NEVER_BALANCED
     if result.balancing_ticks == 0:
         _say(f"error: the pendulum never balanced: it never came within the arming window (|θ| < "
              f"{rig.safety.arm_theta:g} rad); exit {EXIT_NEVER_BALANCED}")

@@ -19,7 +19,8 @@ from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
-_STATE_STYLE = {"idle": "yellow", "armed": "cyan", "balancing": "bold green", "tripped": "bold red"}
+_STATE_STYLE = {"idle": "yellow", "armed": "cyan", "balancing": "bold green", "tripped": "bold red",
+                "calibrating": "magenta", "swinging_up": "bold cyan"}
 
 
 def render(snap: dict[str, Any] | None, title: str = "furuta-rt run") -> Panel:

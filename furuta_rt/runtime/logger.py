@@ -11,6 +11,7 @@ Queue items, in order:
     ("event", (wall_ns, level, message))        may come before "open" (kept until then)
     ("open", {device metadata}[, {run metadata}])  after the handshake: the file is written from here on
     ("ticks", [tuple in records.TICK_RECORD order, ...])
+    ("metadata", name, {key: value})            a metadata record taken during the run (the swing-up's calibration)
     ("close", summary_text)
 """
 
@@ -111,6 +112,8 @@ class TickLog:
             self.event(*item[1])
         elif kind == "open":
             self.open(*item[1:])
+        elif kind == "metadata" and self.writer is not None:
+            self.writer.metadata(item[1], item[2])
         elif kind == "close":
             if item[1]:
                 self.event(time.time_ns(), "INFO", item[1])

@@ -6,7 +6,10 @@ Per tick:
    that is safety.link_loss_periods periods);
 2. convert counts to SI with the device's calibration (HELLO_ACK);
 3. the supervisor decides the state; at arming ``Controller.reset(φ)``; ``Controller.update`` when
-   balancing, ``Controller.hold`` otherwise (the replay rule of furuta_rt.io.log_schema);
+   balancing or swinging up, ``Controller.hold`` otherwise (the replay rule of furuta_rt.io.log_schema);
+   with a swing-up the start-up calibration (furuta_rt.runtime.calibration) is taken while calibrating and
+   applied to θ and φ from then on (the log keeps the device's readings and the calibration as metadata),
+   and the controller's catch and fall move the supervisor between swinging_up and balancing;
 4. ``write`` one COMMAND (ENABLE only when balancing). A sample that is already stale (a newer one is
    waiting: the period was missed) runs through the controller, so the observer keeps the device's
    time step, but gets no COMMAND: whole periods are skipped, commands are never burst;
@@ -32,7 +35,9 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from firmware_protocol import COMMAND_FULL_SCALE, FAULT_MASK, CommandFlags, StatusFlags
+from furuta_rt.config import SwingUpConfig
 from furuta_rt.control.controller import Controller, Measurement
+from furuta_rt.runtime.calibration import CALIBRATION_METADATA, CalibrationWindow, StartupCalibration
 from furuta_rt.runtime.hardware import HardwareInterface, LinkLost
 from furuta_rt.runtime.records import STATE_NAMES, TICK_RECORD
 from furuta_rt.runtime.summary import RecentTrace
@@ -47,6 +52,8 @@ _FAULT_MASK = int(FAULT_MASK)
 _COMMAND_LATE = int(StatusFlags.COMMAND_LATE)
 _TICK_OVERRUN = int(StatusFlags.TICK_OVERRUN)
 _BALANCING = State.BALANCING
+_SWINGING = State.SWINGING_UP
+_CALIBRATING = State.CALIBRATING
 _TRIPPED = State.TRIPPED
 
 
@@ -96,6 +103,11 @@ class LoopResult:
     u_comp: RunningStats = field(default_factory=RunningStats)
     trace: RecentTrace = field(default_factory=RecentTrace)  # t, θ, φ of the last minute of balancing (summary)
     events: list[tuple[int, str, str]] = field(default_factory=list)  # (wall ns, level, message)
+    swing_up_ticks: int = 0  # ticks the swing-up drove the actuator
+    catches: int = 0  # swinging_up → balancing
+    falls: int = 0  # balancing → swinging_up
+    first_catch_s: float = math.nan  # device time from the start of the swing-up to its first catch
+    calibration: StartupCalibration | None = None
 
     @property
     def rate_hz(self) -> float:
@@ -123,6 +135,7 @@ class ControlLoop:
         dashboard: Sink | None = None,
         on_event: Callable[[str, str], None] | None = None,
         mode: str = "none",
+        swing_up: SwingUpConfig | None = None,
     ) -> None:
         self.hw = hw
         self.ctrl = controller
@@ -135,6 +148,7 @@ class ControlLoop:
         self.dashboard = dashboard
         self.on_event = on_event
         self.mode = mode
+        self.calibration_window = CalibrationWindow(swing_up, settings.rate_hz) if swing_up is not None else None
         self.result = LoopResult()
         self._stop: str | None = None
         self._batch: list[tuple] = []
@@ -264,6 +278,21 @@ class ControlLoop:
         self.result.end = "trip"
         self._transitions()
 
+    def _calibrated(self, seq: int, window: CalibrationWindow) -> tuple[StartupCalibration | None, State, bool]:
+        """The calibration window is full: take it (logged as metadata; swing up) or refuse it (trip)."""
+        got = window.result()
+        if isinstance(got, str):
+            self.sup.trip(seq, TripReason.CALIBRATION, got)
+            return None, State.TRIPPED, False
+        self.result.calibration = got
+        if self.log is not None:
+            try:
+                self.log.put_nowait(("metadata", CALIBRATION_METADATA, got.metadata()))
+            except queue.Full:
+                self.result.dropped_log_messages += 1
+        state, reset = self.sup.calibrated(seq, got.describe())
+        return got, state, reset
+
     def _run(self) -> None:
         st = self.settings
         hw, ctrl, sup, r = self.hw, self.ctrl, self.sup, self.result
@@ -291,6 +320,9 @@ class ControlLoop:
         balance_start = -1
         win_ticks, win_start, win_max = 0, perf(), 0.0
         timeout = st.first_sample_timeout
+        window = self.calibration_window
+        startup: StartupCalibration | None = None
+        swing_start_us = 0
         while True:
             t0 = perf()
             s = hw.read(timeout)
@@ -346,14 +378,33 @@ class ControlLoop:
                 if late:
                     r.overruns += 1
                 skipped = 0
-            theta, theta_dot, phi = cal.to_si(s.theta_adc, s.theta_dot_adc - tdo, s.phi_count)
+            theta_dev, theta_dot, phi_dev = cal.to_si(s.theta_adc, s.theta_dot_adc - tdo, s.phi_count)
+            if startup is None:
+                theta, phi = theta_dev, phi_dev
+            else:
+                theta, phi = startup.apply(theta_dev, phi_dev)
             state, reset = sup.step(seq, theta, phi, status, late)
+            if state is _CALIBRATING and window is not None and window.add(theta, phi):
+                startup, state, reset = self._calibrated(seq, window)
+                if startup is not None:
+                    theta, phi = startup.apply(theta_dev, phi_dev)
+                    swing_start_us = dev_us
             if reset:
                 ctrl.reset(phi)
             t2 = perf()
             m = Measurement(dev_us * 1e-6, theta, theta_dot, phi)
-            if state is _BALANCING:
+            if state is _BALANCING or state is _SWINGING:
                 out = ctrl.update(m)
+                if window is not None:
+                    was = state
+                    state = sup.follow(seq, out.swinging, theta)
+                    if state is not was:
+                        if state is _BALANCING:
+                            r.catches += 1
+                            if r.catches == 1:
+                                r.first_catch_s = (dev_us - swing_start_us) * 1e-6
+                        else:
+                            r.falls += 1
                 u = out.u
                 if u - u != 0.0:  # NaN or inf: tripped, the write below answers this SAMPLE with u = 0
                     sup.command_not_finite(seq, u)
@@ -369,7 +420,7 @@ class ControlLoop:
                 sat = False
             t3 = perf()
             if state is _TRIPPED or not stale:
-                if state is _BALANCING:
+                if state is _BALANCING or state is _SWINGING:
                     hw.write(seq, counts(u), _ENABLE)
                 else:  # zero; clear a latched fault while waiting to arm
                     hw.write(seq, 0, _CLEAR_FAULT if (status & _FAULT_MASK and state is State.IDLE) else 0)
@@ -379,7 +430,7 @@ class ControlLoop:
             else:
                 t4 = t3
                 latency_us = -1.0
-            prev_balancing = state is _BALANCING
+            prev_balancing = state is _BALANCING or state is _SWINGING  # the actuator was ours
             wrote_prev = not stale
             # ---- accounting (after the command is out)
             update_us = (t3 - t2) * 1e-3
@@ -400,7 +451,9 @@ class ControlLoop:
                 first_t1 = t1
             r.host_span_s = (t1 - first_t1) * 1e-9
             r.device_span_s = (dev_us - first_dev_us) * 1e-6
-            if prev_balancing:
+            if state is _SWINGING:
+                r.swing_up_ticks += 1
+            elif state is _BALANCING:
                 r.balancing_ticks += 1
                 if balance_start < 0:
                     balance_start = n
@@ -414,7 +467,7 @@ class ControlLoop:
                 self._batch.append((
                     self._wall0 + (t1 - self._perf0), dev_us * 1000, seq, dev_us * 1e-6,
                     s.theta_adc, s.theta_dot_adc, s.phi_count, status,
-                    theta, theta_dot, phi, phd, u, u_lin, u_comp, sat, int(state), reset,
+                    theta_dev, theta_dot, phi_dev, phd, u, u_lin, u_comp, sat, int(state), reset,
                     period_us, read_us, update_us, write_us, latency_us, lateness_us,
                     r.overruns, r.seq_gaps, hw.crc_errors, r.dropped_log_messages, comp.coulomb_level,
                 ))

@@ -3,7 +3,7 @@ logger process starts without loading the controller's dependencies)."""
 
 from __future__ import annotations
 
-STATE_NAMES: tuple[str, ...] = ("idle", "armed", "balancing", "tripped")
+STATE_NAMES: tuple[str, ...] = ("idle", "armed", "balancing", "tripped", "calibrating", "swinging_up")
 """Supervisor state index → name, as logged in /furuta/tick ``state``."""
 
 TICK_RECORD: tuple[str, ...] = (

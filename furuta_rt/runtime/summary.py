@@ -108,9 +108,20 @@ def summary_dict(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path
         "limit_cycle_phi": asdict(lc_phi) if lc_phi else None, "limit_cycle_theta": asdict(lc_theta) if lc_theta else None,
         "mock_injected": list(injected),
         "comp_source": comp_source or None, "fc_hat": fc_hat,
+        "swing_up": _swing_up_dict(r, rate_hz),
         "log": log_path, "log_ticks": log_ticks, "warnings": warnings,
         "events": [{"wall_ns": t, "level": lvl, "message": m} for t, lvl, m in r.events],
     }
+
+
+def _swing_up_dict(r: LoopResult, rate_hz: float) -> dict[str, Any] | None:
+    """The swing-up's figures (None for a run without one)."""
+    cal = r.calibration
+    if cal is None and r.swing_up_ticks == 0:
+        return None
+    return {"swing_up_s": r.swing_up_ticks / rate_hz, "first_catch_s": _num(r.first_catch_s), "catches": r.catches,
+            "falls": r.falls, "theta_zero": None if cal is None else cal.theta_zero,
+            "phi_zero": None if cal is None else cal.phi_zero}
 
 
 def _p(h: Any, unit: str = "µs") -> str:
@@ -160,6 +171,13 @@ def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_pa
         lines.append(f"  compensation: {comp_source}")
     if fc_hat is not None:
         lines.append(f"  adaptive Coulomb estimate at the end: Fc {fc_hat:.4f} N m")
+    su = _swing_up_dict(r, rate_hz)
+    if su is not None:
+        first = "never caught" if su["first_catch_s"] is None else f"first caught {su['first_catch_s']:.2f} s after the start"
+        zeros = "" if r.calibration is None else (f"; calibration θ zero {r.calibration.theta_zero:+.4f} rad, "
+                                                  f"arm zero {r.calibration.phi_zero:+.4f} rad")
+        lines.append(f"  swing-up: {first}, swinging {su['swing_up_s']:.2f} s, {su['catches']} catch(es), "
+                     f"{su['falls']} fall(s){zeros}")
     if r.theta.n > 1:
         lines.append(
             f"  balancing (after its first second): std θ {r.theta.std:.5f} rad, std φ {r.phi.std:.5f} rad, "

@@ -1,4 +1,5 @@
-"""The safety supervisor: a pure state machine, idle → armed → balancing → tripped.
+"""The safety supervisor: a pure state machine, idle → armed → balancing → tripped, or with a swing-up
+idle → calibrating → swinging_up → balancing (→ swinging_up) → tripped.
 
 No I/O, no clock: ``step`` gets one tick's measurement and link facts and returns the state the
 tick runs in. The loop obeys it: only ``balancing`` drives the actuator; every other state sends
@@ -12,6 +13,14 @@ u = 0 with ENABLE clear, and ``tripped`` ends the run (the reason is kept and lo
                missed their deadline
     tripped    latched; u = 0; the run stops
 
+With a swing-up (``SupervisorLimits.swing_up``):
+
+    calibrating  u = 0 while the loop takes the start-up calibration (furuta_rt.runtime.calibration) from
+                 the pendulum hanging still; ``calibrated`` → swinging_up, a refusal trips (``calibration``)
+    swinging_up  the controller's energy pump drives the actuator; trips as balancing except on |θ|
+    balancing    entered and left by the controller's catch / fall (``follow``); the |θ| trip only when
+                 the rig's swing_up.on_fall is "trip"
+
 Link loss (no SAMPLE for more than ``link_loss_periods`` periods) and operator stops (SIGINT,
 SIGTERM) trip from any state via ``trip``.
 """
@@ -23,7 +32,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 from firmware_protocol import FAULT_MASK, StatusFlags
-from furuta_rt.config import SafetyConfig
+from furuta_rt.config import SafetyConfig, SwingUpConfig
 from furuta_rt.runtime.records import STATE_NAMES
 
 
@@ -32,6 +41,8 @@ class State(IntEnum):
     ARMED = 1
     BALANCING = 2
     TRIPPED = 3
+    CALIBRATING = 4
+    SWINGING_UP = 5
 
     @property
     def label(self) -> str:
@@ -57,6 +68,7 @@ class TripReason:
     OVERRUNS = "overruns"
     OPERATOR_STOP = "operator_stop"
     ERROR = "error"
+    CALIBRATION = "calibration"  # the start-up calibration was refused (not hanging still)
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,16 +89,20 @@ class SupervisorLimits:
     arm_theta: float = 0.1
     max_consecutive_overruns: int = 5
     settle_ticks: int = 5
+    swing_up: bool = False  # calibrate, then swing up from hanging (rig swing_up.enabled)
+    trip_on_fall: bool = True  # with a swing-up: a fall trips (on_fall = "trip") instead of swinging up again
 
     @classmethod
-    def from_config(cls, cfg: SafetyConfig, rate_hz: float) -> SupervisorLimits:
-        """Limits from the rig's [safety]; the armed window lasts ~10 ms."""
+    def from_config(cls, cfg: SafetyConfig, rate_hz: float, swing_up: SwingUpConfig | None = None) -> SupervisorLimits:
+        """Limits from the rig's [safety] (and [swing_up]); the armed window lasts ~10 ms."""
         return cls(
             theta_limit=cfg.theta_limit,
             phi_limit=cfg.phi_limit,
             arm_theta=cfg.arm_theta,
             max_consecutive_overruns=cfg.max_consecutive_overruns,
             settle_ticks=max(1, round(0.01 * rate_hz)),
+            swing_up=swing_up is not None and swing_up.enabled,
+            trip_on_fall=swing_up is None or not swing_up.enabled or swing_up.on_fall == "trip",
         )
 
 
@@ -146,6 +162,12 @@ class Supervisor:
         if not (math.isfinite(theta) and math.isfinite(phi)):
             self.trip(seq, TripReason.NONFINITE, f"non-finite measurement θ={theta} φ={phi}")
             return State.TRIPPED, False
+        if s is State.IDLE and lim.swing_up:
+            if status & _FAULT_MASK == 0 and abs(phi) < lim.phi_limit:
+                self._late_run = 0
+                self._go(seq, State.CALIBRATING, "calibrate", "calibrating: the pendulum must hang still")
+                return State.CALIBRATING, False
+            return s, False
         if s is State.IDLE:
             if status & _FAULT_MASK == 0 and abs(theta) < lim.arm_theta and abs(phi) < lim.phi_limit:
                 self._settle = 0
@@ -153,7 +175,7 @@ class Supervisor:
                 self._go(seq, State.ARMED, "arm", f"armed: |θ| = {abs(theta):.3f} rad < {lim.arm_theta:g} rad")
                 return State.ARMED, True
             return s, False
-        # armed or balancing: the actuator is (about to be) ours, so every fault trips
+        # armed, calibrating, swinging up or balancing: the actuator is (about to be) ours, so every fault trips
         if abs(phi) > lim.phi_limit:
             self.trip(seq, TripReason.PHI_LIMIT, f"|φ| = {abs(phi):.3f} rad beyond the cable limit {lim.phi_limit:g} rad")
             return State.TRIPPED, False
@@ -162,6 +184,8 @@ class Supervisor:
             reason = TripReason.SENSOR_FAULT if status & _OVERRANGE_FAULTS else TripReason.DEVICE_FAULT
             self.trip(seq, reason, f"device reports {flags!s} (status {status:#06x})")
             return State.TRIPPED, False
+        if s is State.CALIBRATING:
+            return s, False
         if s is State.ARMED:
             if abs(theta) >= lim.arm_theta:
                 self._go(seq, State.IDLE, "disarm", f"disarmed: |θ| = {abs(theta):.3f} rad left the arming window")
@@ -171,8 +195,8 @@ class Supervisor:
                 self._go(seq, State.BALANCING, "balance", "balancing")
                 return State.BALANCING, False
             return s, False
-        # balancing
-        if abs(theta) > lim.theta_limit:
+        # balancing or swinging up
+        if abs(theta) > lim.theta_limit and s is State.BALANCING and lim.trip_on_fall:
             self.trip(seq, TripReason.THETA_LIMIT, f"|θ| = {abs(theta):.3f} rad beyond the limit {lim.theta_limit:g} rad")
             return State.TRIPPED, False
         if late:
@@ -183,6 +207,22 @@ class Supervisor:
         elif late is not None:
             self._late_run = 0
         return s, False
+
+    def calibrated(self, seq: int, message: str) -> tuple[State, bool]:
+        """The start-up calibration is taken: swing up (the controller is reset first)."""
+        if self.state is not State.CALIBRATING:
+            return self.state, False
+        self._go(seq, State.SWINGING_UP, "swing_up", message)
+        return State.SWINGING_UP, True
+
+    def follow(self, seq: int, swinging: bool, theta: float) -> State:
+        """The controller's catch (swinging_up → balancing) or fall (balancing → swinging_up) after its update."""
+        s = self.state
+        if s is State.SWINGING_UP and not swinging:
+            self._go(seq, State.BALANCING, "catch", f"caught at |θ| = {abs(theta):.3f} rad: balancing")
+        elif s is State.BALANCING and swinging:
+            self._go(seq, State.SWINGING_UP, "fall", f"fell: |θ| = {abs(theta):.3f} rad, swinging up again")
+        return self.state
 
     def command_not_finite(self, seq: int, u: float) -> None:
         """The controller produced a non-finite command: trip (the loop sends u = 0 instead)."""
