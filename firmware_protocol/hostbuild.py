@@ -39,7 +39,13 @@ def build_dir() -> Path:
 
 
 def _compiler() -> str:
-    cc = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
+    explicit = os.environ.get("CC")
+    if explicit:
+        found = shutil.which(explicit)
+        if not found:
+            raise BuildError(f"CC={explicit}: no such compiler, needed to build the C firmware for the host")
+        return found
+    cc = shutil.which("gcc") or shutil.which("cc")
     if not cc:
         raise BuildError("no C compiler found (install gcc, or set CC) to build the C firmware for the host")
     return cc

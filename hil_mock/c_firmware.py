@@ -13,7 +13,7 @@ from __future__ import annotations
 import ctypes
 import functools
 
-from firmware_protocol import counts_to_actuator
+from firmware_protocol import HelloAck, Status, counts_to_actuator
 from firmware_protocol.hostbuild import host_library
 from furuta_rt.config import RigConfig
 from furuta_rt.model.rig import RigModel
@@ -159,6 +159,12 @@ class CFirmware(Firmware):
     @property
     def armed(self) -> bool:
         return self.streaming and self._any_applied
+
+    def status(self) -> Status:
+        raise NotImplementedError("the C core builds its own STATUS frames: decode them from tx")
+
+    def hello_ack(self, nonce: int) -> HelloAck:
+        raise NotImplementedError("the C core builds its own HELLO_ACK: decode it from tx")
 
     # ------------------------------------------------------------ Firmware's interface
     def receive(self, data: bytes) -> None:

@@ -17,9 +17,11 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 import random
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -293,3 +295,14 @@ def test_furuta_rt_run_balances_with_the_c_device(tmp_path: Path) -> None:
     assert "firmware 0.2.0" in d.stdout + d.stderr  # the C core's HELLO_ACK (the Python device says 0.1.0)
     s = read_summary(tmp_path)
     assert s["end"] == "duration" and s["ticks"] == 3 * 500 and s["balanced_s"] > 2.9
+
+
+def test_c_device_without_a_compiler_is_one_line_exit_2(tmp_path: Path) -> None:
+    """hil-mock --firmware c where the host build cannot run: one line naming the problem, exit 2, no traceback."""
+    env = {**os.environ, "CC": "no-such-cc", "FURUTA_RT_BUILD_DIR": str(tmp_path)}
+    res = subprocess.run([sys.executable, "-m", "hil_mock", "--firmware", "c", "--duration", "1"], env=env,
+                         capture_output=True, text=True, timeout=60, check=False)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().splitlines() == [
+        "hil-mock: error: CC=no-such-cc: no such compiler, needed to build the C firmware for the host"]
+    assert "serving on" not in res.stdout and not list(tmp_path.iterdir())
