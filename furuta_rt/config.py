@@ -187,9 +187,9 @@ class AdaptiveComp(_Section):
     Fc_max: Positive = Field(default=1.5, description="upper bound of the estimate, N m")
     time_constant: Positive = Field(default=0.5, description="convergence time constant while the arm slides, s")
     epsilon: NonNegative = Field(default=0.01, description="ε of eq. 1 in the applied compensation, rad/s")
-    v_min: Positive = Field(default=0.1, description="|φ̂̇| below which the sign is uncertain: estimate frozen, rad/s")
-    holdoff_ticks: Annotated[int, Field(ge=0, le=1000)] = Field(
-        default=10, description="ticks the sign of φ̂̇ must hold (above v_min) before adapting again after a reversal")
+    v_min: Positive = Field(default=0.05, description="mean |φ̇| over a window below which it is frozen, rad/s")
+    window_ticks: Annotated[int, Field(ge=1, le=5000)] = Field(
+        default=25, description="the estimate moves once per window of this many ticks of sliding one way")
 
 
 CompMode = Literal["none", "coulomb", "stiction", "lugre", "adaptive"]

@@ -157,26 +157,34 @@ def test_adaptive_law_converges_from_zero_and_follows_a_friction_step() -> None:
     assert t_re < 5.0, f"after the step F̂c {fc[~first][:: RATE]} does not settle within 10 % of 0.5 N m"
 
 
-def test_adaptive_law_is_bounded_and_frozen_where_the_sign_is_uncertain() -> None:
-    law = AdaptiveCoulomb(fc0=0.2, fc_max=0.5, time_constant=0.1, epsilon=0.01, v_min=0.1, holdoff_ticks=3,
+def slide(law: AdaptiveCoulomb, residual: float, v: float, ticks: int, phi0: float = 0.0) -> float:
+    """Feed ``ticks`` ticks of the arm sliding at ``v`` rad/s with a constant torque residual; returns the last φ."""
+    phi = phi0
+    for _ in range(ticks):
+        phi += v / RATE
+        law.adapt(residual, v, phi)
+    return phi
+
+
+def test_adaptive_law_moves_per_window_is_bounded_and_frozen_where_unsure() -> None:
+    window = 5
+    law = AdaptiveCoulomb(fc0=0.2, fc_max=0.5, time_constant=0.1, epsilon=0.01, v_min=0.1, window_ticks=window,
                           period=1.0 / RATE)
-    for v in (0.0, 0.05, -0.09):  # |φ̂̇| < v_min: the arm may be stuck, the sign uncertain
-        law.adapt(-10.0, v)
+    step = (1.0 / RATE) / 0.1  # h / T_a
+    phi = slide(law, -1.0, 0.05, 10 * window)  # below v_min: the arm may be sticking
     assert law.fc_hat == 0.2
-    law.adapt(-10.0, 0.5)  # a new sign: the hold-off starts
-    for _ in range(3):
-        law.adapt(-10.0, 0.5)
-    assert law.fc_hat == 0.2, "adapted inside the hold-off after a reversal"
-    law.adapt(-1.0, 0.5)  # torque residual −1 N m while sliding forward: the friction is larger than F̂c
-    assert law.fc_hat == pytest.approx(0.2 + (1.0 / RATE) / 0.1 * 1.0)
-    for _ in range(1000):
-        law.adapt(-10.0, 0.5)
+    for v in (-0.5, 0.5) * 10:  # reversals before a window fills: the sign of φ̇ is not sure
+        phi = slide(law, -1.0, v, window - 1, phi)
+    assert law.fc_hat == 0.2
+    law.reset()
+    phi = slide(law, -1.0, 0.5, 1 + window, phi)  # the first tick opens the window, then one full window
+    # r̂ = −1 N m while sliding forward: the friction is 1 N m larger than F̂c; one window moves F̂c by window·h/T_a
+    assert law.fc_hat == pytest.approx(0.2 + step * window * 1.0)
+    phi = slide(law, -10.0, 0.5, 100 * window, phi)
     assert law.fc_hat == 0.5  # bounded above by Fc_max
-    law.adapt(-10.0, -0.5)  # reversal: hold-off again
-    for _ in range(1000):
-        law.adapt(-10.0, -0.5)  # residual along the motion (negative, sliding backwards): F̂c too large
-    assert law.fc_hat == 0.0  # bounded below by 0
-    assert law.compensation(-0.5) == 0.0
+    # sliding backwards with r̂ negative (along the motion): F̂c is too large; down to 0 and no further
+    phi = slide(law, -10.0, -0.5, 100 * window, phi)
+    assert law.fc_hat == 0.0 and law.compensation(-0.5) == 0.0
 
 
 def test_adaptive_estimate_is_frozen_outside_balancing() -> None:

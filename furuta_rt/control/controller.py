@@ -175,7 +175,7 @@ class Controller:
         phi_dot = obs.correct(m.phi)
         adaptive = self.compensator.adaptive
         if adaptive is not None and not self.swinging:  # prior φ̂̇ as regressor: independent of this tick's noise
-            adaptive.adapt(innovation * self._torque_per_innovation, phi_dot_prior)
+            adaptive.adapt(innovation * self._torque_per_innovation, phi_dot_prior, m.phi)
         if self.swinging:
             u_lin = su.command(m.theta, m.theta_dot, m.phi, phi_dot)  # type: ignore[union-attr]
         else:
