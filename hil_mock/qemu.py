@@ -12,6 +12,7 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -101,3 +102,39 @@ def start_qemu(image: Path, timeout_s: float = 10.0) -> tuple[subprocess.Popen[s
             return proc, m.group(1)
     proc.kill()
     raise RuntimeError(f"qemu-system-arm did not report its pty (exit {proc.wait(timeout_s)})")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m hil_mock.qemu [--rig R]``: build the image, serve it on a pty until SIGINT/SIGTERM."""
+    import argparse
+    import signal
+
+    from furuta_rt.config import load_rig
+    from furuta_rt.errors import UserError
+
+    p = argparse.ArgumentParser(prog="python -m hil_mock.qemu",
+                                description="The cross-compiled firmware under qemu-system-arm on a pseudo-terminal.")
+    p.add_argument("--rig", help="rig TOML file or shipped rig (default thesis): the pendulum simulated in the image")
+    args = p.parse_args(argv)
+    try:
+        missing = tools_missing()
+        if missing:
+            raise UserError(f"{', '.join(missing)} not installed: scripts/build_firmware installs them (as root)")
+        proc, pty = start_qemu(build_image(load_rig(args.rig)))
+    except (UserError, ValueError, RuntimeError) as err:
+        print(f"hil_mock.qemu: error: {str(err).splitlines()[0]}", file=sys.stderr)
+        return 2
+    signal.signal(signal.SIGTERM, lambda *_: proc.terminate())
+    print(f"hil_mock.qemu: serving on {pty}", flush=True)
+    try:
+        return proc.wait()
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            proc.wait(10)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
