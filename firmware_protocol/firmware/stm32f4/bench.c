@@ -3,7 +3,8 @@
  * qemu-system-arm (scripts/build_firmware). The same core, codec and TX ring as the board image,
  * with a HAL of plain variables: sensors at the rails, 100 received bytes per tick (1 Mbaud at
  * 1 kHz), faults latching. bench_mark() brackets each measured tick; the script counts the
- * instructions qemu executes between two marks. Ends with a semihosting exit.
+ * instructions qemu executes between two marks. It also paints the free stack before the ticks and prints
+ * the deepest use after them ("stack_bytes N", semihosting). Ends with a semihosting exit.
  */
 #include <stdint.h>
 #include <string.h>
@@ -86,6 +87,55 @@ static void tick(uint32_t k)
     hal.tx.tail = hal.tx.head; /* the UART sent it */
 }
 
+extern uint32_t _ebss, _estack;
+#define STACK_PAINT 0xA5A5A5A5u
+
+/* Paint from the end of .bss up to a little below the current stack pointer. */
+static __attribute__((noinline)) void paint_stack(void)
+{
+    uintptr_t sp;
+    uint32_t *p = &_ebss;
+    __asm__ volatile("mov %0, sp" : "=r"(sp));
+    while ((uintptr_t)p < sp - 128u) {
+        *p++ = STACK_PAINT;
+    }
+}
+
+/* Bytes of stack ever used: from the top of RAM down to the first word not still painted. */
+static uint32_t stack_used(void)
+{
+    const uint32_t *p = &_ebss;
+    while (*p == STACK_PAINT) {
+        p++;
+    }
+    return (uint32_t)((uintptr_t)&_estack - (uintptr_t)p);
+}
+
+static void semihosting_write0(const char *text)
+{
+    register uint32_t r0 __asm__("r0") = 0x04u; /* SYS_WRITE0 */
+    register const char *r1 __asm__("r1") = text;
+    __asm__ volatile("bkpt 0xAB" : : "r"(r0), "r"(r1) : "memory");
+}
+
+static void print_stack_used(void)
+{
+    char text[32] = "stack_bytes ";
+    char digits[11];
+    uint32_t v = stack_used();
+    size_t n = 0, at = 12;
+    do {
+        digits[n++] = (char)('0' + v % 10u);
+        v /= 10u;
+    } while (v);
+    while (n) {
+        text[at++] = digits[--n];
+    }
+    text[at++] = '\n';
+    text[at] = '\0';
+    semihosting_write0(text);
+}
+
 static void semihosting_exit(void)
 {
     register uint32_t r0 __asm__("r0") = 0x18u;     /* SYS_EXIT */
@@ -97,6 +147,7 @@ int main(void)
 {
     fp_msg_t m;
     uint32_t k;
+    paint_stack();
     fw_init(&fw, &board, &hal);
     /* tick 1: 0x00, HELLO and CONFIG in one tick: HELLO_ACK + STATUS + SAMPLE 0 */
     rx[rx_len++] = 0u;
@@ -130,6 +181,7 @@ int main(void)
     queue_command(fw.seq - 1u, 0, FP_CMD_CLEAR_FAULT);
     fill_with_stale(fw.seq);
     tick(11u);
+    print_stack_used();
     semihosting_exit();
     return 0;
 }
