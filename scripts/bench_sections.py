@@ -372,20 +372,22 @@ class DaemonRun:
         }
 
 
-_RUNS: dict[tuple[int, float, bool], DaemonRun] = {}
+_RUNS: dict[tuple[int, float, bool, int | None], DaemonRun] = {}
 
 
-def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = True) -> DaemonRun:
+def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = True, foxglove_port: int | None = None) -> DaemonRun:
     """Run the daemon against hil-mock (real-time pacing, over a pty, with an MCAP log unless ``log`` is
-    False), sampled from outside. Cached: the closed-loop, logging and memory sections share a run."""
-    key = (rate, seconds, log)
+    False, serving the live view on ``foxglove_port`` if given), sampled from outside. Cached: the
+    closed-loop, logging and memory sections share a run."""
+    key = (rate, seconds, log, foxglove_port)
     if key in _RUNS:
         return _RUNS[key]
     with tempfile.TemporaryDirectory(prefix="furuta-bench-") as tmp:
         d = Path(tmp)
         cmd = [*FURUTA_RT, "run", "--mock", "--rate", str(rate), "--duration", f"{seconds:g}",
                "--no-tui", "--summary-json", str(d / "summary.json"), "--mock-seed", "0",
-               f"--mock-arg=--stats-json={d / 'mock.json'}", *(["--log", str(d / "run.mcap")] if log else [])]
+               f"--mock-arg=--stats-json={d / 'mock.json'}", *(["--log", str(d / "run.mcap")] if log else []),
+               *([f"--foxglove={foxglove_port}"] if foxglove_port else [])]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         ticking = threading.Event()
         err_lines: list[str] = []
@@ -760,6 +762,74 @@ def _read_breakdown(mcap_read: Any, path: Path) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------------ logging
+# ------------------------------------------------------------------------------------- live view
+def _foxglove_subscriber(port: int, seconds: float, counts: dict[str, int]) -> None:
+    """A Foxglove WebSocket client (the websockets package) subscribed to every channel the run advertises,
+    counting messages per topic, for ``seconds`` after it connects (retrying while the daemon starts)."""
+    import asyncio
+
+    import websockets
+
+    async def run() -> None:
+        end_connect = time.monotonic() + CHILD_TIMEOUT_S
+        while True:
+            try:
+                ws = await websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"], max_size=None)
+                break
+            except OSError:
+                if time.monotonic() > end_connect:
+                    return
+                await asyncio.sleep(0.2)
+        topics: dict[int, str] = {}
+        end = time.monotonic() + seconds
+        async with ws:
+            while time.monotonic() < end:
+                try:
+                    msg = await asyncio.wait_for(ws.recv(), 0.5)
+                except TimeoutError:
+                    continue
+                if isinstance(msg, str) and json.loads(msg)["op"] == "advertise":
+                    chans = json.loads(msg)["channels"]
+                    topics.update({c["id"]: c["topic"] for c in chans})
+                    subscriptions = [{"id": c["id"], "channelId": c["id"]} for c in chans]
+                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+                elif isinstance(msg, bytes) and msg[0] == 1:
+                    topic = topics[int.from_bytes(msg[1:5], "little")]
+                    counts[topic] = counts.get(topic, 0) + 1
+
+    asyncio.run(run())
+
+
+@section("live")
+def bench_live(quick: bool) -> dict[str, Any]:
+    """The live view's effect on the control loop: the same 1 kHz `run --mock --log`, without and with
+    `--foxglove` and a client subscribed to every channel (all 4 × 1000 messages/s). The live view runs in
+    the logger process: the control process's tick (read + update + write) and its timing should not change."""
+    rate, seconds = 1000, (10.0 if quick else 30.0)
+    base = daemon_run(rate, seconds)
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    counts: dict[str, int] = {}
+    client = threading.Thread(target=_foxglove_subscriber, args=(port, seconds + 10.0, counts), daemon=True)
+    client.start()
+    live = daemon_run(rate, seconds, foxglove_port=port)
+    client.join(30.0)
+
+    def tick(run: DaemonRun) -> dict[str, float]:
+        s = run.summary
+        return {"tick_p99_us": s["read_us"]["p99"] + s["update_us"]["p99"] + s["write_us"]["p99"],
+                "update_p99_us": s["update_us"]["p99"], "jitter_p99_us": s["jitter_us"]["p99"],
+                "latency_p99_us": s["latency_us"]["p99"], "late_commands": s["late_commands"],
+                "logger_cpu_share": run.cpu_share.get("logger", float("nan")), "loadavg": run.loadavg}
+
+    without, with_ = tick(base), tick(live)
+    return {"rate_hz": rate, "seconds": seconds, "without": without, "with_live_view": with_,
+            "messages_received": counts, "messages_per_s": sum(counts.values()) / seconds,
+            "tick_p99_ratio": with_["tick_p99_us"] / without["tick_p99_us"],
+            "jitter_p99_ratio": with_["jitter_p99_us"] / without["jitter_p99_us"]}
+
+
 def _log_producer(conn: Any, path: str | None, rate: int, seconds: float) -> None:
     """A stand-in control process (spawned): the daemon's start-up order and real-time setup
     (logger spawned, then furuta_rt.runtime.rt.setup_realtime: gc frozen, memory locked, SCHED_FIFO 50;
@@ -1025,6 +1095,16 @@ def table(res: dict[str, Any]) -> list[dict[str, Any]]:
         row("replay: where read_log's time goes", f"JSON {100 * b['json_decode_share']:.0f}%",
             "read_log CPU", f"zstd {100 * b['zstd_decompress_crc_share']:.0f}%, columns {100 * b['numpy_columns_share']:.0f}%, "
             f"records {100 * b['file_records_slicing_share']:.0f}%")
+    if "live" in res:
+        lv = res["live"]
+        a, b = lv["without"], lv["with_live_view"]
+        row("live view (--foxglove, a client on every channel): tick p99 (read + update + write)",
+            f"{b['tick_p99_us']:.0f} µs", f"without {a['tick_p99_us']:.0f} µs", f"{lv['tick_p99_ratio']:.2f}×")
+        row("live view: period jitter p99 / latency p99", f"{b['jitter_p99_us']:.0f} / {b['latency_p99_us']:.0f} µs",
+            f"without {a['jitter_p99_us']:.0f} / {a['latency_p99_us']:.0f} µs", f"{lv['jitter_p99_ratio']:.2f}×",
+            "", None)
+        row("live view: messages the client received / logger process CPU", f"{lv['messages_per_s']:.0f} /s",
+            f"logger {100 * a['logger_cpu_share']:.1f}% of a core without", f"{100 * b['logger_cpu_share']:.1f}% with")
     if "logging" in res:
         lg = res["logging"]
         row("MCAP logging, control side per tick", f"{lg['control_side_us_per_tick']:.1f} µs", "period 1000 µs",

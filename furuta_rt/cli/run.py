@@ -73,6 +73,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="trip after N commanded ticks in a row miss their deadline (default: "
                    f"safety.max_consecutive_overruns; with --mock {MOCK_TIMEOUT_MS:g} ms worth of ticks)")
     p.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON to FILE")
+    p.add_argument("--foxglove", nargs="?", type=int, const=8765, default=None, metavar="PORT",
+                   help="serve the live channels to Foxglove (Open connection → Foxglove WebSocket, "
+                   "ws://127.0.0.1:PORT, default 8765), from the logger process, not the control loop")
     m = p.add_argument_group("--mock options (passed to hil-mock)")
     m.add_argument("--mock-effect", action="append", default=[], metavar="NAME.PARAM=VALUE",
                    help="physics the simulated rig has beyond the config, e.g. arm_coulomb.Fc=0.3 (repeatable)")
@@ -212,6 +215,7 @@ def run(args: argparse.Namespace) -> int:
         link_timeout_s=link_ms * 1e-3,
         max_overruns=max_overruns,
         log_path=args.log,
+        foxglove_port=args.foxglove,
         tui=(args.tui or default_tui()) and not args.no_tui,
         realtime=not args.no_rt,
         cpu=args.cpu,

@@ -129,3 +129,31 @@ LOG_SCHEMA: dict[str, Any] = {
         "line": _INT,
     },
 }
+
+
+def _stamp(time_ns: int) -> dict[str, int]:
+    return {"sec": time_ns // 1_000_000_000, "nsec": time_ns % 1_000_000_000}
+
+
+def joint_states_message(time_ns: int, tick: dict[str, Any]) -> dict[str, Any]:
+    """The /furuta/joint_states message of one tick (``tick``: TICK_FIELDS): θ and φ as joints, u as φ's effort."""
+    return {
+        "timestamp": _stamp(time_ns),
+        "joints": [
+            {"name": "theta", "position": tick["theta"], "velocity": tick["theta_dot"], "effort": 0.0},
+            {"name": "phi", "position": tick["phi"], "velocity": tick["phi_dot_hat"], "effort": tick["u"]},
+        ],
+    }
+
+
+def log_message(time_ns: int, level: str, message: str, name: str = "furuta_rt") -> dict[str, Any]:
+    """The /furuta/events message (foxglove.Log) of one event (``level``: a key of LOG_LEVELS)."""
+    return {"timestamp": _stamp(time_ns), "level": LOG_LEVELS[level], "message": message, "name": name,
+            "file": "", "line": 0}
+
+
+def device_time_base(wall_ns: int, device_ns: int, mapped_at: str) -> dict[str, str]:
+    """The "time_base" metadata of a log whose device time ``device_ns`` was seen at wall clock ``wall_ns``:
+    every message time is ``device_ns + device_offset_ns`` (log_schema)."""
+    return {"clock": "wall", "device_offset_ns": str(wall_ns - device_ns), "device_t0_ns": str(device_ns),
+            "wall_t0_ns": str(wall_ns), "mapped_at": mapped_at, "rule": "time_ns = device_ns + device_offset_ns"}

@@ -60,13 +60,6 @@ def run_metadata(
 ABSOLUTE_AFTER_S = 315_532_800.0  # 1980-01-01 in Unix seconds: later times are taken as absolute
 
 
-def device_time_base(wall_ns: int, device_ns: int, mapped_at: str) -> dict[str, str]:
-    """The "time_base" metadata of a log whose device time ``device_ns`` was seen at wall clock ``wall_ns``:
-    every message time is ``device_ns + device_offset_ns`` (log_schema)."""
-    return {"clock": "wall", "device_offset_ns": str(wall_ns - device_ns), "device_t0_ns": str(device_ns),
-            "wall_t0_ns": str(wall_ns), "mapped_at": mapped_at, "rule": "time_ns = device_ns + device_offset_ns"}
-
-
 def _ns(seconds: float) -> int:
     return max(0, round(seconds * 1e9))
 
@@ -125,14 +118,7 @@ class LogWriter:
         w = self._writer
         seq = int(fields["seq"]) & 0xFFFFFFFF
         w.add_message(self._tick, time_ns, _dumps(fields), time_ns, seq)
-        stamp = {"sec": time_ns // 1_000_000_000, "nsec": time_ns % 1_000_000_000}
-        joints = {
-            "timestamp": stamp,
-            "joints": [
-                {"name": "theta", "position": fields["theta"], "velocity": fields["theta_dot"], "effort": 0.0},
-                {"name": "phi", "position": fields["phi"], "velocity": fields["phi_dot_hat"], "effort": fields["u"]},
-            ],
-        }
+        joints = ls.joint_states_message(time_ns, fields)
         w.add_message(self._joints, time_ns, _dumps(joints), time_ns, seq)
 
     def timing(self, log_time: int, fields: Mapping[str, Any]) -> None:
@@ -147,14 +133,7 @@ class LogWriter:
         self._writer.add_message(self._compensation, time_ns, _dumps({"seq": seq, "fc_hat": fc_hat}), time_ns, seq)
 
     def event(self, log_time: int, level: str, message: str, name: str = "furuta_rt") -> None:
-        body = {
-            "timestamp": {"sec": log_time // 1_000_000_000, "nsec": log_time % 1_000_000_000},
-            "level": ls.LOG_LEVELS[level],
-            "message": message,
-            "name": name,
-            "file": "",
-            "line": 0,
-        }
+        body = ls.log_message(log_time, level, message, name)
         self._writer.add_message(self._events, log_time, _dumps(body), log_time)
 
     def flush(self) -> None:

@@ -5,7 +5,8 @@ Process layout (multiprocessing 'spawn': children start from a clean interpreter
     control (this process)  read → update → write at the device's rate; gc frozen; SCHED_FIFO,
                             mlockall and CPU affinity when permitted
     logger                  MCAP writing, fed tick batches through a bounded queue on a pipe (no named
-                            semaphores: nothing is left in /dev/shm whatever kills the group)
+                            semaphores: nothing is left in /dev/shm whatever kills the group); with
+                            --foxglove also the live view (Foxglove WebSocket), from the same items
     dashboard               rich Live view, fed ≤ 10 snapshots/s (only with a terminal)
     hil-mock (--mock)       the simulated DAQ on a pseudo-terminal
 
@@ -67,6 +68,7 @@ class RunOptions:
     cpu: int | None = None  # pin the control loop to this CPU (opt-in)
     gains: list[float] | None = None
     summary_json: str | None = None
+    foxglove_port: int | None = None  # serve the live view (from the logger process) on this port
     rig_source: str = "thesis"
     warnings: list[str] = field(default_factory=list)
     comp_source: str = ""  # where the compensation's parameters came from (--comp-from), in words
@@ -82,6 +84,21 @@ def _check_log_path(path: str) -> None:
     if Path(path).is_dir():
         raise UserError(f"--log {path} is a directory; give a file name such as run.mcap")
     probe_writable(path, "the log")
+
+
+def _check_port_free(port: int) -> None:
+    """The live view's port can be bound (it is bound for real by the logger process)."""
+    from furuta_rt.runtime.live import HOST
+
+    if not 1 <= port <= 65535:
+        raise UserError(f"--foxglove={port}: a TCP port is 1..65535")
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((HOST, port))
+        except OSError as err:
+            raise UserError(f"--foxglove={port}: cannot listen on {HOST}:{port} ({err.strerror}); "
+                            "is another run or bridge serving there? give another port, e.g. --foxglove=8766") from None
 
 
 def _ticks_on_disk(path: str) -> int | None:
@@ -223,6 +240,8 @@ def run_daemon(opts: RunOptions) -> int:
     warnings = list(opts.warnings)
     if opts.log_path:
         _check_log_path(opts.log_path)
+    if opts.foxglove_port is not None:
+        _check_port_free(opts.foxglove_port)
     children = _Children()
     mock_start: concurrent.futures.Future | None = None
     mock_proc = None
@@ -237,8 +256,8 @@ def run_daemon(opts: RunOptions) -> int:
     try:
         # start-up in parallel: the logger process, hil-mock (a few seconds of imports each) and, here,
         # the controller's own imports; the device handshake comes last, right before the first tick
-        if opts.log_path:
-            children.spawn_logger(LogSetup(path=opts.log_path, rig=rig))
+        if opts.log_path or opts.foxglove_port is not None:
+            children.spawn_logger(LogSetup(path=opts.log_path, rig=rig, foxglove_port=opts.foxglove_port))
         if opts.mock_args is not None:
             pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="mock-start")
             mock_start = pool.submit(_start_mock, opts.mock_args)
@@ -258,6 +277,11 @@ def run_daemon(opts: RunOptions) -> int:
         hw.open()
         warnings += hw.warnings
         children.wait_logger()
+        if opts.foxglove_port is not None:
+            from furuta_rt.runtime.live import HOST, LAYOUT_PATH
+
+            _say(f"live view on ws://{HOST}:{opts.foxglove_port} (Foxglove: Open connection → Foxglove WebSocket; "
+                 f"layout {LAYOUT_PATH})")
         applied, rt_warnings = setup_realtime(opts.realtime, cpu=opts.cpu)
         warnings += rt_warnings
         sys.setswitchinterval(1e-4)  # a queue feeder thread must give the GIL back quickly
@@ -310,7 +334,7 @@ def run_daemon(opts: RunOptions) -> int:
         summary = "" if result is None else format_summary(result, rate_hz=rate, mode=opts.mode, rig=rig.name,
                                                             log_path=opts.log_path, limits=_limits_text(opts, rate),
                                                             injected=mock_injections(opts.mock_args), **comp)
-        log_ok = children.close_logger(summary)
+        log_ok = children.close_logger(summary) or not opts.log_path  # a live view only: no file to be incomplete
         if mock_proc is None and mock_start is not None:  # start-up failed elsewhere: do not leave it running
             with contextlib.suppress(Exception):
                 mock_proc = mock_start.result(timeout=60)[0]

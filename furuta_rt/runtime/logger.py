@@ -1,4 +1,6 @@
-"""The MCAP logger process, fed tick batches through a bounded queue by the control loop.
+"""The MCAP logger process, fed tick batches through a bounded queue by the control loop; with
+``--foxglove`` it also serves the same messages live (furuta_rt.runtime.live), so nothing of the live
+view runs in the control process (with ``--foxglove`` and no ``--log`` it only serves).
 
 The file is written by furuta_rt.io.mcap_log.LogWriter (exactly the layout of furuta_rt.io.log_schema:
 /furuta/tick, /furuta/timing, /furuta/joint_states, /furuta/events; metadata "rig", "run", "device";
@@ -29,26 +31,25 @@ from typing import Any
 
 from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
-from furuta_rt.io.log_schema import TICK_FIELDS, TIMING_FIELDS
-from furuta_rt.io.mcap_log import LogWriter, device_time_base
-from furuta_rt.runtime.records import STATE_NAMES, TICK_RECORD
+from furuta_rt.io.mcap_log import LogWriter
+from furuta_rt.runtime.live import LiveView, start_live_view
+from furuta_rt.runtime.records import TICK_RECORD, first_time_base, tick_fields, timing_fields
 
-_IDX = {name: i for i, name in enumerate(TICK_RECORD)}
-_TICK_KEYS = tuple((k, _IDX["state" if k == "mode" else k]) for k in TICK_FIELDS)  # mode: set below
-_TIMING_KEYS = tuple((k, _IDX[{"dropped_log_messages": "dropped"}.get(k, k)]) for k in TIMING_FIELDS)
-_STATE, _WALL, _DEV, _SEQ, _FC = _IDX["state"], _IDX["wall_ns"], _IDX["dev_ns"], _IDX["seq"], _IDX["fc_hat"]
+_DEV, _SEQ, _FC = (TICK_RECORD.index(name) for name in ("dev_ns", "seq", "fc_hat"))
 
 
 @dataclass
 class LogSetup:
-    """What the writer needs before the handshake (the device, and the run's port, come with "open")."""
+    """What the writer needs before the handshake (the device, and the run's port, come with "open");
+    ``path`` None: no file (a live view only)."""
 
-    path: str
+    path: str | None
     rig: RigConfig
     run: dict[str, str] = field(default_factory=dict)
     # End a chunk every 0.5 s: with the loop's 0.1 s batches and the writer's 0.2 s queue poll, a run
     # killed at any moment loses under 1 s of log (the reliability issue's bound), by construction.
     flush_s: float = 0.5
+    foxglove_port: int | None = None  # serve the live view on this port (furuta_rt.runtime.live)
 
 
 class TickLog:
@@ -80,19 +81,13 @@ class TickLog:
             return
         mode = self.mode
         if self.device_offset_ns is None:
-            # the device clock → wall clock map, fixed at the start of streaming (the handshake): the least
-            # delayed SAMPLE of the first batch (~0.1 s) sets it, as furuta_rt.runtime.timing.DeviceClock does
-            first = min(batch, key=lambda r: r[_WALL] - r[_DEV])
-            self.device_offset_ns = first[_WALL] - first[_DEV]
-            w.time_base(device_time_base(first[_WALL], first[_DEV], "the least delayed SAMPLE of the first batch (0.1 s)"))
+            self.device_offset_ns, base = first_time_base(batch)
+            w.time_base(base)
         offset = self.device_offset_ns
         for rec in batch:
-            tick = {k: rec[i] for k, i in _TICK_KEYS}  # in TICK_FIELDS order
-            tick["state"] = STATE_NAMES[rec[_STATE]]
-            tick["mode"] = mode
             ns = rec[_DEV] + offset
-            w.tick(ns, tick)
-            w.timing(ns, {k: rec[i] for k, i in _TIMING_KEYS})
+            w.tick(ns, tick_fields(rec, mode))
+            w.timing(ns, timing_fields(rec))
             if mode == "adaptive":
                 w.compensation(ns, rec[_SEQ], rec[_FC])
         self.ticks += len(batch)
@@ -148,14 +143,15 @@ def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None) -> N
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the daemon decides
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    log: TickLog | None = TickLog(setup)
+    log: TickLog | None = TickLog(setup) if setup.path else None
+    live: LiveView | None = start_live_view(setup.foxglove_port) if setup.foxglove_port else None
     ready.set()
     parent = multiprocessing.parent_process()
     last_flush = time.monotonic()
 
     def fail(err: Exception) -> None:
         nonlocal log
-        print(f"furuta-rt: error: {_failure(setup.path, err)}", file=sys.stderr, flush=True)
+        print(f"furuta-rt: error: {_failure(str(setup.path), err)}", file=sys.stderr, flush=True)
         if failed is not None:
             failed.set()
         if log is not None and log.writer is not None:
@@ -171,6 +167,8 @@ def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None) -> N
             item = None
         except (EOFError, OSError):  # the writer's end closed: the control process is gone
             item, gone = None, True
+        if live is not None and item is not None:
+            live = live.handle(item)
         if item is not None and item[0] == "close" and log is None:
             break
         try:
@@ -187,6 +185,8 @@ def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None) -> N
                 with contextlib.suppress(OSError, UserError):
                     log.event(time.time_ns(), "ERROR", "the control process ended without closing the log")
             break
+    if live is not None:
+        live.close()
     if log is not None:
         try:
             log.close()

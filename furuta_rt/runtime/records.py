@@ -1,7 +1,11 @@
-"""What the control process hands to the logger: the tick record layout (kept import-light, so the
-logger process starts without loading the controller's dependencies)."""
+"""What the control process hands to the logger: the tick record layout, and its conversion to the log's
+messages (kept import-light, so the logger process starts without loading the controller's dependencies)."""
 
 from __future__ import annotations
+
+from typing import Any
+
+from furuta_rt.io.log_schema import TICK_FIELDS, TIMING_FIELDS, device_time_base
 
 STATE_NAMES: tuple[str, ...] = ("idle", "armed", "balancing", "tripped", "calibrating", "swinging_up")
 """Supervisor state index → name, as logged in /furuta/tick ``state``."""
@@ -14,3 +18,35 @@ TICK_RECORD: tuple[str, ...] = (
 )  # fmt: skip
 """Field order of the tuples the loop sends to the logger (``state`` is an index into STATE_NAMES; ``fc_hat``:
 the Coulomb level the compensator uses, the online estimate with ``--comp adaptive``)."""
+
+_IDX = {name: i for i, name in enumerate(TICK_RECORD)}
+_TICK_KEYS = tuple((k, _IDX["state" if k == "mode" else k]) for k in TICK_FIELDS)  # mode: set by tick_fields
+_TIMING_KEYS = tuple((k, _IDX[{"dropped_log_messages": "dropped"}.get(k, k)]) for k in TIMING_FIELDS)
+_STATE, _WALL, _DEV = _IDX["state"], _IDX["wall_ns"], _IDX["dev_ns"]
+
+
+def tick_fields(rec: tuple, mode: str) -> dict[str, Any]:
+    """The /furuta/tick message (TICK_FIELDS, in order) of one loop record (records.TICK_RECORD)."""
+    tick = {k: rec[i] for k, i in _TICK_KEYS}
+    tick["state"] = STATE_NAMES[rec[_STATE]]
+    tick["mode"] = mode
+    return tick
+
+
+def timing_fields(rec: tuple) -> dict[str, Any]:
+    """The /furuta/timing message (TIMING_FIELDS) of one loop record."""
+    return {k: rec[i] for k, i in _TIMING_KEYS}
+
+
+def first_time_base(batch: list[tuple]) -> tuple[int, dict[str, str]]:
+    """The device clock → wall clock offset fixed at the start of streaming (the handshake), from the first
+    batch (~0.1 s): its least delayed SAMPLE sets it, as furuta_rt.runtime.timing.DeviceClock does; and the
+    "time_base" metadata saying so."""
+    first = min(batch, key=lambda r: r[_WALL] - r[_DEV])
+    offset = first[_WALL] - first[_DEV]
+    return offset, device_time_base(first[_WALL], first[_DEV], "the least delayed SAMPLE of the first batch (0.1 s)")
+
+
+def record_time_ns(rec: tuple, offset: int) -> int:
+    """A tick's time on the log's one time base: its device time mapped to the wall clock."""
+    return rec[_DEV] + offset
