@@ -157,11 +157,11 @@ class _Children:
         if self.logger is not None and not self._ready.wait(CHILD_START_TIMEOUT_S):
             raise UserError(f"the logger process did not start within {CHILD_START_TIMEOUT_S:g} s (log {self._log_path})")
 
-    def start_dashboard(self, title: str) -> None:
+    def start_dashboard(self, info: Any) -> None:
         from furuta_rt.runtime.dashboard import dashboard_process
 
         self.dash_q = Channel(2)
-        proc = self.ctx.Process(target=dashboard_process, args=(self.dash_q, title), name="furuta-rt-dashboard")
+        proc = self.ctx.Process(target=dashboard_process, args=(self.dash_q, info), name="furuta-rt-dashboard")
         proc.start()
         self.dashboard = proc
 
@@ -288,7 +288,13 @@ def run_daemon(opts: RunOptions) -> int:
         for w in warnings:
             _say(f"warning: {w}")
         if opts.tui:
-            children.start_dashboard(f"furuta-rt run — {rig.name}, {opts.mode}, {rate} Hz")
+            from furuta_rt.runtime.dashboard import DashboardInfo
+
+            children.start_dashboard(DashboardInfo(
+                title=f"furuta-rt run — {rig.name}, {opts.mode}, {rate} Hz", log_path=opts.log_path,
+                arm_theta=limits.arm_theta, theta_limit=limits.theta_limit, phi_limit=limits.phi_limit,
+                live_url=f"ws://127.0.0.1:{opts.foxglove_port}" if opts.foxglove_port is not None else None,
+                u_unit="V" if rig.actuator.kind == "dc_motor" else "N m"))
         if children.log_q is not None:  # the first put starts the queue's feeder thread: not in a tick
             children.log_q.put(("event", (time.time_ns(), "INFO", f"connecting to {port} at {rate} Hz")))
         info = hw.handshake(rate, opts.watchdog_ms)
