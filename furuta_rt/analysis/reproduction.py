@@ -26,8 +26,9 @@ from furuta_rt.analysis.describing_function import SECTION4_CASES, analyze_limit
 from furuta_rt.analysis.limit_cycle import coulomb_effects, orbit_report
 from furuta_rt.analysis.periodic_orbit import IdealLoop, Trajectory, record_trajectory
 from furuta_rt.config import CompMode, RigConfig, load_rig
-from furuta_rt.control.controller import design_gains
+from furuta_rt.control.controller import Controller, design_gains
 from furuta_rt.model.plant import FurutaPlant
+from furuta_rt.model.sensors import Measurement
 from furuta_rt.recording import Recording
 from furuta_rt.sim.closed_loop import run_closed_loop
 
@@ -181,10 +182,10 @@ def table_markdown(results: dict[str, RunStats], fc: float, extra_rows: dict[str
     ]
     rows = list(results.items()) + list((extra_rows or {}).items())
     for mode, s in rows:
-        th = THESIS_STD.get(mode.split(" ")[0], (math.nan,) * 3)
+        th = [f"{v:g}" for v in THESIS_STD[mode.split(" ")[0]]] if mode.split(" ")[0] in THESIS_STD else ["—"] * 3
         fell = " (fell)" if s.fell else ""
         lines.append(
-            f"| {mode}{fell} | {s.std_theta:.3g} | {th[0]:g} | {s.std_phi:.3g} | {th[1]:g} | {s.std_u:.3g} | {th[2]:g} |"
+            f"| {mode}{fell} | {s.std_theta:.3g} | {th[0]} | {s.std_phi:.3g} | {th[1]} | {s.std_u:.3g} | {th[2]} |"
             f" {100 * s.saturated_fraction:.0f}% | {100 * s.stuck_fraction:.0f}% |"
         )
     base = results.get("none")
@@ -202,6 +203,32 @@ def table_markdown(results: dict[str, RunStats], fc: float, extra_rows: dict[str
                 f"{t0[1] / t[1]:.3g} | {base.std_u / s.std_u:.3g} / {t0[2] / t[2]:.3g} |"
             )
     return "\n".join(lines) + "\n"
+
+
+def beyond_thesis(rig: RigConfig, fc: float, uncompensated: Recording, out: Path, duration: float, transient: float,
+                  summary: dict) -> dict[str, RunStats]:
+    """Section 8's suggestions, through what furuta-rt adds: (1) `diagnose` the uncompensated run and compensate
+    with what it found (``run --comp-from``: the report is written to ``out``), (2) adaptive Coulomb compensation
+    starting from F̂c = 0 (``--comp adaptive``). Both against the same simulated friction as the table."""
+    from furuta_rt.control.comp_from import compensation_from_report
+    from furuta_rt.diagnose.engine import Options, diagnose
+
+    report = out / "diagnosis_no_compensation.json"
+    report.write_text(json.dumps(diagnose(uncompensated, rig, Options(closed_loop=False)).to_json(), indent=1) + "\n")
+    found = compensation_from_report(str(report), rig.compensation, rig.name)
+    from_report = rig.model_copy(update={"compensation": found.compensation})
+    rec = run_closed_loop(from_report, duration, effects=coulomb_effects(rig, fc), mode=found.mode, seed=1)
+    label = found.source.split(": ", 1)[1]
+    rows = {f"{found.mode}, --comp-from diagnose ({label})": run_stats(from_report, rec, transient)}
+    rec = run_closed_loop(rig, duration, effects=coulomb_effects(rig, fc), mode="adaptive", seed=1)
+    replay = Controller.from_rig(rig, mode="adaptive")  # the run's controller is deterministic: replayed, its estimate
+    for k in range(len(rec.t)):
+        replay.update(Measurement(rec.t[k], rec.theta[k], rec.theta_dot[k], rec.phi[k]))  # type: ignore[index]
+    level = replay.compensator.coulomb_level
+    rows[f"adaptive from F̂c = 0 (F̂c {level:.4f} N m at the end)"] = run_stats(rig, rec, transient)
+    summary["beyond_thesis"] = {"comp_from": {"report": str(report), "source": found.source},
+                                "adaptive_final_fc": level}
+    return rows
 
 
 def section4(rig: RigConfig, fc: float, out: Path, duration: float) -> dict:
@@ -322,6 +349,9 @@ def main(argv: list[str] | None = None) -> int:
             figures.orbit_figure(kept["orbit"], kept["trajectory"], m.omega if m else None, m.amplitude_phidot if m else None,
                                  out / "limit_cycle_orbit.png", f"ideal loop, Coulomb Fc = {fc:g} N m")
         say("limit cycle: describing function vs periodic orbit vs simulation")
+    # ---- beyond the thesis (issue 19): compensation from a diagnosis of the uncompensated run, and adaptive
+    extra.update(beyond_thesis(rig, fc, recs["none"], out, duration, transient, summary))
+    say("compensation from diagnose's report, adaptive Coulomb compensation")
     table = table_markdown(results, fc, extra)
     if args.sensitivity:
         rows = compensation_sensitivity(rig, fc)
