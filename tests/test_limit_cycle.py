@@ -162,3 +162,23 @@ def test_cli_orbit_plot_and_errors(capsys: pytest.CaptureFixture[str], tmp_path)
     assert main(["analyze", "limit-cycle", "--plot", str(tmp_path / "x.pdf")]) == 2
     err = capsys.readouterr().err
     assert "--fc" in err and "--gains" in err and ".png" in err
+
+
+def test_nyquist_png_is_wide_titled_with_its_g_and_axes_named(tmp_path, thesis_rig) -> None:
+    """`analyze limit-cycle --plot`: ≥ 1000 px wide, the axes say which G(jω) and its unit, the title the
+    transfer function, the rig, the law and Fc."""
+    import struct
+
+    from matplotlib.figure import Figure
+
+    from furuta_rt.analysis.figures import G_NAME, nyquist_axes
+
+    out = tmp_path / "nyquist.png"
+    assert main(["analyze", "limit-cycle", "--plot", str(out), "--fc", "0.3"]) == 0
+    width, height = struct.unpack(">II", out.read_bytes()[16:24])  # the PNG's IHDR
+    assert width >= 1000 and height >= 600
+    ax = Figure().subplots()
+    lc = analyze_limit_cycle(FurutaPlant(thesis_rig.lumped()), design_gains(thesis_rig), 0.3)
+    nyquist_axes(ax, lc, "thesis rig")
+    assert ax.get_xlabel() == "Re G(jω) (rad/s per N m)" and ax.get_ylabel() == "Im G(jω) (rad/s per N m)"
+    assert "φ̇(s)/F(s)" in G_NAME

@@ -16,6 +16,7 @@ from furuta_rt.analysis.periodic_orbit import PeriodicOrbit, Trajectory
 from furuta_rt.recording import Recording
 
 DPI = 80
+MIN_WIDTH_PX = 1000  # every figure at least this wide (the dpi is raised for small ones)
 
 
 def _new(rows: int, cols: int, size: tuple[float, float]) -> tuple[Figure, np.ndarray]:
@@ -27,13 +28,18 @@ def _new(rows: int, cols: int, size: tuple[float, float]) -> tuple[Figure, np.nd
 
 def _save(fig: Figure, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=DPI)
+    fig.savefig(path, dpi=max(DPI, MIN_WIDTH_PX / fig.get_figwidth()))
     return path
+
+
+G_NAME = "G(s) = φ̇(s)/F(s), arm friction torque F → arm velocity φ̇"
+G_UNIT = "rad/s per N m"
 
 
 def nyquist_axes(ax: Axes, lc: LimitCycleAnalysis, title: str) -> None:
     """G(jω) for ω > 0 (solid) and ω < 0 (dashed), the −1/N(C) locus (the negative real axis) and
-    the describing-function solutions."""
+    the describing-function solutions (G: section 4's transfer function from the friction torque on the
+    arm to φ̇, for the given feedback)."""
     w = np.logspace(-3, 4, 40000)
     g = np.asarray(lc.G(1j * w), dtype=complex)
     g0 = complex(lc.G(1e-9j))
@@ -54,8 +60,8 @@ def nyquist_axes(ax: Axes, lc: LimitCycleAnalysis, title: str) -> None:
     ax.set_xlim(-lim, lim)
     ax.set_ylim(-lim, lim)
     ax.set_title(title, fontsize=9)
-    ax.set_xlabel("Re")
-    ax.set_ylabel("Im")
+    ax.set_xlabel(f"Re G(jω) ({G_UNIT})")
+    ax.set_ylabel(f"Im G(jω) ({G_UNIT})")
 
 
 def nyquist_figure(cases: Sequence[tuple[str, LimitCycleAnalysis]], path: Path) -> Path:
@@ -63,7 +69,8 @@ def nyquist_figure(cases: Sequence[tuple[str, LimitCycleAnalysis]], path: Path) 
     n = len(cases)
     cols = 2 if n > 1 else 1
     rows = (n + cols - 1) // cols
-    fig, axes = _new(rows, cols, (5.0 * cols, 4.2 * rows))
+    fig, axes = _new(rows, cols, (6.0 * cols, 5.2 * rows))
+    fig.suptitle(f"Nyquist plot of {G_NAME}\nwith −1/N(C), the Coulomb describing function's locus", fontsize=10)
     for ax, (title, lc) in zip(axes.flat, cases, strict=False):
         nyquist_axes(ax, lc, title)
     axes.flat[0].legend(fontsize=7, loc="lower left")

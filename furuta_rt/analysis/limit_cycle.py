@@ -3,6 +3,8 @@ beside the periodic orbit of the nonlinear loop and a long simulation of that sa
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from furuta_rt.analysis.describing_function import (
@@ -78,16 +80,21 @@ def orbit_report(
     sim_duration: float = 40.0,
     transient: float = 15.0,
     keep: dict | None = None,
+    step: Callable[[str], None] | None = None,
 ) -> dict:
     """Periodic orbit (shooting) vs long simulation of the same loop vs the describing function.
-    ``keep``, if given, receives the PeriodicOrbit ("orbit") and the simulated Trajectory ("trajectory")."""
+    ``keep``, if given, receives the PeriodicOrbit ("orbit") and the simulated Trajectory ("trajectory");
+    ``step(label)``, if given, is told each stage as it starts (two: the orbit, the simulation)."""
+    say = step or (lambda label: None)
     effects = coulomb_effects(rig, fc)
 
     def make() -> IdealLoop | SampledLoop:
         return IdealLoop(rig, gains, effects) if loop == "ideal" else SampledLoop(rig, gains, effects)
 
     try:
+        say(f"periodic orbit of the {loop} loop (shooting)")
         orbit = find_periodic_orbit(make())
+        say(f"{sim_duration:g} s simulation of the {loop} loop")
         sim, traj = simulate_limit_cycle(make(), duration=sim_duration, transient=transient,
                                          crossings_per_period=orbit.crossings_per_period)
     except OrbitNotFound as err:
@@ -137,8 +144,10 @@ def limit_cycle_report(
     gains: list[float] | np.ndarray | None = None,
     fc: float | None = None,
     loops: tuple[str, ...] = (),
+    step: Callable[[str], None] | None = None,
 ) -> dict:
-    """Everything ``furuta-rt analyze limit-cycle`` prints, as one dict."""
+    """Everything ``furuta-rt analyze limit-cycle`` prints, as one dict (``step``: see orbit_report;
+    2 steps per loop)."""
     L = design_gains(rig) if gains is None else np.asarray(gains, dtype=float)
     fc_source = "--fc"
     if fc is None:
@@ -147,5 +156,5 @@ def limit_cycle_report(
     out = {"rig": rig.name, "gains_source": "given" if gains is not None else rig.control.design,
            "fc_source": fc_source, **out}
     if loops:
-        out["periodic_orbit"] = {loop: orbit_report(rig, L, fc, loop, lc) for loop in loops}
+        out["periodic_orbit"] = {loop: orbit_report(rig, L, fc, loop, lc, step=step) for loop in loops}
     return out

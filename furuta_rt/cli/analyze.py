@@ -51,7 +51,10 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
     loops: tuple[str, ...] = ()
     if args.orbit:
         loops = ("ideal", "sampled") if args.loop == "both" else (args.loop,)
-    out = limit_cycle_report(rig, gains, args.fc, loops)
+    from furuta_rt.replay.progress import steps_bar
+
+    with steps_bar("analyze limit-cycle", 2 * len(loops), enabled=None if loops else False) as step:
+        out = limit_cycle_report(rig, gains, args.fc, loops, step=step)
     if args.plot:
         from furuta_rt.analysis.figures import nyquist_figure
 
@@ -59,7 +62,7 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
         if path.suffix.lower() != ".png":
             raise UserError(f"--plot {path}: give a .png file name")
         lc, _ = describing_function_report(rig, np.asarray(out["gains"]), out["fc"])
-        nyquist_figure([("u = " + _law(out["gains"]), lc)], path)
+        nyquist_figure([(f"{out['rig']} rig, u = {_law(out['gains'])}\nCoulomb Fc = {out['fc']:g} N m", lc)], path)
         out["plot"] = str(path)
     if args.json:
         print(json.dumps(out))

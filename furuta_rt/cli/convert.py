@@ -14,6 +14,7 @@ from furuta_rt.io.mcap_read import is_mcap
 from furuta_rt.io.output import refuse_existing, replace_when_done
 from furuta_rt.io.recordings import output_format, read_recording, write_recording
 from furuta_rt.replay.plot import plot_recording
+from furuta_rt.replay.progress import progress_bar
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -55,13 +56,14 @@ def run(args: argparse.Namespace) -> int:
         mapping = load_mapping(args.mapping, args.map)
     rig_name = args.config or (mapping.rig if mapping is not None else None)
     rig = load_rig(rig_name) if rig_name else None
-    rec = read_recording(src, mapping, rig)
+    with progress_bar(f"reading {src.name}") as bar:
+        rec = read_recording(src, mapping, rig, progress=bar)
     for w in rec.meta.get("warnings", []):  # type: ignore[union-attr]
         Console(stderr=True, soft_wrap=True).print(f"[yellow]warning:[/] {w}", highlight=False)
     if to_log and rig is None:
         rig = load_rig("thesis")
-    with replace_when_done(dst) as tmp:
-        write_recording(rec, tmp, rig, extra=args.extra)
+    with replace_when_done(dst) as tmp, progress_bar(f"writing {dst.name}") as bar:
+        write_recording(rec, tmp, rig, extra=args.extra, progress=bar)
     unit = "V" if rig is not None and rig.actuator.kind == "dc_motor" else "N m"
     rig_text = f", rig {rig.name}" if to_log and rig else ""
     con.print(f"wrote {dst}: {len(rec)} rows, {rec.duration:.2f} s{rig_text}", highlight=False)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -166,6 +166,7 @@ def write_recording_mcap(
     mode: CompMode | None = None,
     gains: list[float] | np.ndarray | None = None,
     source: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> Path:
     """Write ``rec`` as a log of ``rig``: every row a tick in state "balancing" (reset on the first),
     so ``replay`` runs the controller over all of it. u_lin, u_comp, phi_dot_hat come from
@@ -227,5 +228,7 @@ def write_recording_mcap(
                 "dropped_log_messages": 0,
             })
             prev = tk
+            if progress is not None and k % 8192 == 0:
+                progress(k, n)
         w.event(_ns(t0 + offset), "INFO", f"converted from {run['source']}")
     return Path(path)

@@ -6,6 +6,7 @@ output's extension (.mcap or .csv).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 from furuta_rt.config import RigConfig, load_rig
@@ -17,13 +18,14 @@ from furuta_rt.io.mcap_read import is_mcap, log_to_recording, read_log, require_
 from furuta_rt.recording import Recording
 
 
-def read_recording(path: str | Path, mapping: CsvMapping | str | None = None, rig: RigConfig | None = None) -> Recording:
+def read_recording(path: str | Path, mapping: CsvMapping | str | None = None, rig: RigConfig | None = None,
+                   progress: Callable[[int, int], None] | None = None) -> Recording:
     """A Recording from an MCAP log or a CSV (``mapping``: a CsvMapping, a shipped mapping name or a
     TOML file, for other rigs' CSVs). A log's warnings (e.g. recovered after a kill) go to
-    ``rec.meta["warnings"]``."""
+    ``rec.meta["warnings"]``; ``progress(bytes_read, size)`` per chunk of a log."""
     p = Path(path)
     if is_mcap(p):
-        log = require_ticks(read_log(p, timing=False))
+        log = require_ticks(read_log(p, timing=False, progress=progress))
         rec = log_to_recording(log)
         rec.meta["warnings"] = list(log.warnings)
         return rec
@@ -44,13 +46,14 @@ def output_format(path: str | Path) -> str:
     return suffix
 
 
-def write_recording(rec: Recording, path: str | Path, rig: RigConfig | None = None, *, extra: bool = False) -> Path:
-    """Write ``rec`` as CSV (.csv) or as a log of ``rig`` (.mcap)."""
+def write_recording(rec: Recording, path: str | Path, rig: RigConfig | None = None, *, extra: bool = False,
+                    progress: Callable[[int, int], None] | None = None) -> Path:
+    """Write ``rec`` as CSV (.csv) or as a log of ``rig`` (.mcap; ``progress(rows_done, rows)`` as it goes)."""
     p = Path(path)
     if output_format(p) == ".mcap":
         if rig is None:
             raise UserError(f"writing {p} needs the rig config (--config)")
-        return write_recording_mcap(rec, p, rig)
+        return write_recording_mcap(rec, p, rig, progress=progress)
     try:
         write_csv(rec, p, extra=extra)
     except OSError as err:

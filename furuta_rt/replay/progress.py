@@ -21,3 +21,21 @@ def progress_bar(description: str, enabled: bool | None = None) -> Iterator[Call
             bar.update(task, completed=done, total=total)
 
         yield update
+
+
+@contextmanager
+def steps_bar(description: str, total: int, enabled: bool | None = None) -> Iterator[Callable[[str], None]]:
+    """A rich progress bar over ``total`` named steps (on stderr, only when it is a terminal):
+    ``step(label)`` says which one starts now."""
+    show = sys.stderr.isatty() if enabled is None else enabled
+    columns = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+               TextColumn("{task.fields[label]}"))
+    with Progress(*columns, console=Console(stderr=True), transient=True, disable=not show) as bar:
+        task = bar.add_task(description, total=total, label="")
+        started = [0]
+
+        def step(label: str) -> None:
+            bar.update(task, completed=started[0], label=label)
+            started[0] += 1
+
+        yield step
