@@ -55,7 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="device logic: python (default) or c, the microcontroller's C core built for this machine")
     p.add_argument("--fault", action="append", default=[], metavar="KIND@T[:DUR]",
                    help="scheduled fault, e.g. stall@2.0:100ms, reset@3, disconnect@5, mute@1:50ms, deaf@1:50ms, "
-                        "push@4 (an impulse on the pendulum; push@4:8 = θ̇ jumps 8 rad/s)")
+                        "push@4 (an impulse on the pendulum; push@4:8 = θ̇ jumps 8 rad/s), friction_step@8:Fc=0.5 "
+                        "(the arm's Coulomb friction becomes 0.5 N m)")
     p.add_argument("--corrupt-rate", type=float, metavar="P", help="flip a bit in each device→host byte with probability P")
     p.add_argument("--drop-rate", type=float, metavar="P", help="drop each device→host byte with probability P")
     p.add_argument("--rx-corrupt-rate", type=float, metavar="P", help="the same for host→device bytes")
