@@ -78,7 +78,7 @@ def test_a_websocket_client_receives_the_joint_states_of_a_mock_run() -> None:
     assert f"live view on ws://127.0.0.1:{port}" in d.stderr
     assert got["subprotocol"] in SUBPROTOCOLS
     ch = got["channels"]
-    assert set(ch) == {ls.TICK_TOPIC, ls.JOINT_STATES_TOPIC, ls.TIMING_TOPIC, ls.EVENTS_TOPIC}
+    assert set(ch) == {ls.TICK_TOPIC, ls.JOINT_STATES_TOPIC, ls.TIMING_TOPIC, ls.EVENTS_TOPIC, ls.COMPENSATION_TOPIC}
     assert ch[ls.JOINT_STATES_TOPIC]["schemaName"] == "foxglove.JointStates" and ch[ls.JOINT_STATES_TOPIC]["encoding"] == "json"
     assert json.loads(ch[ls.TICK_TOPIC]["schema"]) == ls.TICK_SCHEMA
     joints = got["messages"][ls.JOINT_STATES_TOPIC]

@@ -2,7 +2,8 @@
 package), for Foxglove's "Open connection → Foxglove WebSocket" at ws://localhost:PORT.
 
 It lives in the logger process and is fed the same queue items as the MCAP writer (the control process
-does nothing more for it): /furuta/tick, /furuta/joint_states, /furuta/timing and /furuta/events with
+does nothing more for it): /furuta/tick, /furuta/joint_states, /furuta/timing, /furuta/events (and
+/furuta/compensation with ``--comp adaptive``) with
 the log's schemas and its one time base (log_schema), so a layout made for a log works live and back.
 Messages are encoded only while a client is subscribed (``Channel.has_sinks``), and ticks are sent at
 most ``MAX_LIVE_HZ`` times a second (every k-th device tick; the log keeps them all; every event is sent):
@@ -26,12 +27,13 @@ DEFAULT_PORT = 8765
 MAX_LIVE_HZ = 250.0
 HOST = "127.0.0.1"
 LAYOUT_PATH = Path(__file__).with_name("foxglove_layout.json")
-_SEQ = TICK_RECORD.index("seq")
+_SEQ, _FC = TICK_RECORD.index("seq"), TICK_RECORD.index("fc_hat")
 _CHANNELS = (
     (ls.TICK_TOPIC, ls.TICK_SCHEMA),
     (ls.JOINT_STATES_TOPIC, ls.JOINT_STATES_SCHEMA),
     (ls.TIMING_TOPIC, ls.TIMING_SCHEMA),
     (ls.EVENTS_TOPIC, ls.LOG_SCHEMA),
+    (ls.COMPENSATION_TOPIC, ls.COMPENSATION_SCHEMA),  # published with --comp adaptive, as in the log
 )
 
 try:
@@ -78,9 +80,11 @@ class LiveView:
     def ticks(self, batch: list[tuple]) -> None:
         if self.offset is None:
             self.offset = first_time_base(batch)[0]
-        tick_ch, joints_ch, timing_ch = (self.channels[t] for t in (ls.TICK_TOPIC, ls.JOINT_STATES_TOPIC, ls.TIMING_TOPIC))
+        tick_ch, joints_ch, timing_ch, comp_ch = (self.channels[t] for t in (
+            ls.TICK_TOPIC, ls.JOINT_STATES_TOPIC, ls.TIMING_TOPIC, ls.COMPENSATION_TOPIC))
         want_tick, want_joints, want_timing = tick_ch.has_sinks(), joints_ch.has_sinks(), timing_ch.has_sinks()
-        if not (want_tick or want_joints or want_timing):
+        want_comp = self.mode == "adaptive" and comp_ch.has_sinks()
+        if not (want_tick or want_joints or want_timing or want_comp):
             return
         mode, offset, every = self.mode, self.offset, self.every
         for rec in batch:
@@ -94,6 +98,8 @@ class LiveView:
                 joints_ch.log(_dumps(ls.joint_states_message(ns, tick)), log_time=ns)
             if want_timing:
                 timing_ch.log(_dumps(timing_fields(rec)), log_time=ns)
+            if want_comp:
+                comp_ch.log(_dumps({"seq": rec[_SEQ], "fc_hat": rec[_FC]}), log_time=ns)
 
     def event(self, wall_ns: int, level: str, message: str) -> None:
         self.channels[ls.EVENTS_TOPIC].log(_dumps(ls.log_message(wall_ns, level, message)), log_time=wall_ns)
