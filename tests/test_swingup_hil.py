@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 from test_reliability_harness import DaemonProcess, read_summary, traceback_free
 
+from firmware_protocol import StatusFlags
 from furuta_rt.config import load_rig
 from furuta_rt.io.mcap_read import read_log
 from furuta_rt.model.effects import effects_from_assignments
@@ -107,3 +108,34 @@ def test_swing_up_from_hanging_catches_and_balances(name: str, tmp_path: Path) -
         push_t = t[0] + push_at
         assert t[recaught[0]] - push_t <= recatch_limit, (t[recaught[0]] - push_t, recatch_limit)
         assert s["swing_up"]["falls"] >= 1 and s["swing_up"]["catches"] >= 2
+
+
+def test_calibration_refuses_a_pendulum_that_is_not_hanging_still(tmp_path: Path) -> None:
+    """The mock releases the pendulum 0.24 rad from hanging: it swings, the calibration refuses with one line saying
+    what moved, the run trips (exit 1) and the actuator was never driven (every logged u is 0, ENABLE never set)."""
+    args = ["--mock", "--swing-up", "--mock-initial-theta", "2.9", "--duration", "3", "--no-tui",
+            "--log", str(tmp_path / "run.mcap"), "--summary-json", str(tmp_path / "summary.json")]
+    d = DaemonProcess(args)
+    rc = d.wait(timeout=120)
+    err = "\n".join(d.lines)
+    assert traceback_free(err + d.stdout), err
+    assert rc == 1, err
+    s = read_summary(tmp_path)
+    assert s["trip_reason"] == "calibration" and "not hanging still" in s["trip_message"]
+    assert sum("calibration refused" in line for line in d.lines) == 1, err
+    log = read_log(tmp_path / "run.mcap")
+    assert np.all(log.ticks["u"] == 0.0)
+    assert not np.any(log.ticks["status"] & int(StatusFlags.ENABLED))  # the device never drove the arm
+    assert CALIBRATION_METADATA not in log.metadata
+
+
+def test_swing_up_on_a_rig_whose_theta_stops_at_pi_is_refused(tmp_path: Path) -> None:
+    """A ±π θ sensor (sensors.theta_wraps = false) cannot see the pendulum hang: one line naming the key, exit 2."""
+    rig = tmp_path / "rig.toml"
+    text = (Path(__file__).parents[1] / "furuta_rt" / "rigs" / "thesis.toml").read_text()
+    rig.write_text(text.replace("theta_wraps = true", "theta_wraps = false", 1))
+    d = DaemonProcess(["--mock", "--swing-up", "--config", str(rig), "--duration", "1", "--no-tui"])
+    rc = d.wait(timeout=60)
+    assert rc == 2
+    lines = [line for line in d.lines if line.strip()]
+    assert len(lines) == 1 and "sensors.theta_wraps" in lines[0] and "Traceback" not in lines[0], lines
