@@ -1023,6 +1023,40 @@ def bench_memory(quick: bool) -> dict[str, Any]:
     return out
 
 
+# ----------------------------------------------------------------------------------- swing-up
+SWING_UP_RIGS = ("thesis", "qube_servo2", "macstepien")
+
+
+@section("swing_up")
+def bench_swing_up(quick: bool) -> dict[str, Any]:
+    """Per rig, the energy swing-up from hanging at rest (Controller.update against the simulator, the rig's derived
+    defaults): time to its first catch, peak |φ| and |u|; against the minimum-time swing-up with the same actuator
+    bound (bang-bang shooting with scipy, furuta_rt.analysis.min_time_swingup), as a ratio. Both on the nominal plant;
+    the thesis rig also with arm Coulomb friction 0.3 N m (the HIL test's case, no optimum for it)."""
+    from furuta_rt.analysis.min_time_swingup import optimise
+    from furuta_rt.config import load_rig
+    from furuta_rt.model.effects import effects_from_assignments
+    from furuta_rt.sim.swingup_run import simulate_swing_up
+
+    out: dict[str, Any] = {}
+    for name in SWING_UP_RIGS:
+        rig = load_rig(name)
+        run = simulate_swing_up(rig, 8.0, seed=1)
+        t0 = time.perf_counter()
+        opt = optimise(rig, run, bisections=4 if quick else 6)
+        out[name] = {"time_to_catch_s": run.first_catch_s, "peak_phi": run.peak_phi, "phi_limit": rig.safety.phi_limit,
+                     "peak_u": run.peak_u, "u_limit": rig.actuator.limit, "min_time_s": opt.T,
+                     "min_time_infeasible_s": opt.T_infeasible, "min_time_ok": opt.success, "nodes": opt.nodes,
+                     "max_defect": opt.max_defect, "min_time_peak_phi": opt.peak_phi, "min_time_peak_u": opt.peak_u,
+                     "open_loop_end_theta": opt.open_loop_end[0], "open_loop_end_energy": opt.open_loop_end[1],
+                     "ratio": run.first_catch_s / opt.T, "optimise_s": time.perf_counter() - t0}
+    rig = load_rig("thesis")
+    run = simulate_swing_up(rig, 8.0, seed=1, effects=effects_from_assignments(["arm_coulomb.Fc=0.3"]))
+    out["thesis_coulomb_0.3"] = {"time_to_catch_s": run.first_catch_s, "peak_phi": run.peak_phi, "peak_u": run.peak_u,
+                                 "ratio_to_frictionless": run.first_catch_s / out["thesis"]["time_to_catch_s"]}
+    return out
+
+
 # -------------------------------------------------------------------------------------- table
 def table(res: dict[str, Any]) -> list[dict[str, Any]]:
     """One row per figure: value, the reference it is compared to, the ratio, the target and verdict."""
@@ -1120,6 +1154,21 @@ def table(res: dict[str, Any]) -> list[dict[str, Any]]:
         row("MCAP writer process at 1 kHz (synthetic / in the daemon run)",
             f"{100 * share:.1f}% / {100 * dshare:.1f}%" if share is not None and dshare is not None else "n/a",
             "one core", f"{lg['writer_us_per_tick']:.0f} µs CPU per tick" if lg["writer_us_per_tick"] else "")
+    if "swing_up" in res:
+        su = res["swing_up"]
+        for name in SWING_UP_RIGS:
+            r = su[name]
+            unit = "N m" if name == "thesis" else "V"
+            row(f"swing-up from hanging, {name}: time to the catch / peak |φ| / peak |u|",
+                f"{r['time_to_catch_s']:.2f} s / {r['peak_phi']:.2f} of {r['phi_limit']:g} rad / "
+                f"{r['peak_u']:.2f} of {r['u_limit']:g} {unit}",
+                f"minimum time to the catch region, same bound (collocation, {r['nodes']} nodes): "
+                + (f"{r['min_time_s']:.2f} s (infeasible at {r['min_time_infeasible_s']:.2f} s)" if r["min_time_ok"]
+                   else "no feasible trajectory found"), f"{r['ratio']:.2f}× the minimum")
+        c = su["thesis_coulomb_0.3"]
+        row("swing-up from hanging, thesis with arm Coulomb 0.3 N m: time to the catch / peak |φ| / peak |u|",
+            f"{c['time_to_catch_s']:.2f} s / {c['peak_phi']:.2f} rad / {c['peak_u']:.2f} N m", "the same rig without friction",
+            f"{c['ratio_to_frictionless']:.2f}×")
     if "diagnose" in res:
         d = res["diagnose"]
         row("diagnose, 60 s 500 Hz recording", f"{d['max_seconds']:.1f} s", "target 20 s",

@@ -29,6 +29,7 @@ class SwingUpRun:
     phi: np.ndarray
     u: np.ndarray
     swinging: np.ndarray
+    true_state: np.ndarray  # (n, 4): the simulator's x = [θ, θ̇, φ, φ̇] at each sample, θ unwrapped
 
 
 def swing_up_rig(rig: RigConfig) -> RigConfig:
@@ -50,12 +51,14 @@ def simulate_swing_up(rig: RigConfig, duration: float, *, effects: Effects | Non
     n = round(duration * rig.control.rate_hz)
     push_tick = None if push_at is None else round(push_at * rig.control.rate_hz)
     cols = {k: np.empty(n) for k in ("t", "theta", "phi", "u", "swinging")}
+    true_state = np.empty((n, 4))
     first = recatch = math.nan
     falls = 0
     prev = True
     for k in range(n):
         if k == push_tick:
             sim.theta_dot += kick
+        true_state[k] = sim.state
         m = sim.measure()
         out = ctrl.update(m)
         if prev and not out.swinging:
@@ -72,4 +75,4 @@ def simulate_swing_up(rig: RigConfig, duration: float, *, effects: Effects | Non
         sim.set_command(out.u)
     theta = (cols["theta"] + math.pi) % (2 * math.pi) - math.pi
     return SwingUpRun(first, recatch, falls, float(np.max(np.abs(cols["phi"]))), float(np.max(np.abs(cols["u"]))),
-                      cols["t"], theta, cols["phi"], cols["u"], cols["swinging"].astype(bool))
+                      cols["t"], theta, cols["phi"], cols["u"], cols["swinging"].astype(bool), true_state)
