@@ -105,3 +105,58 @@ def test_calibration_refuses_a_swinging_pendulum_and_one_not_hanging() -> None:
     assert isinstance(got, str) and "from hanging" in got
     got = window_over(np.full(500, math.pi), np.linspace(0.0, 0.2, 500))  # the arm turning
     assert isinstance(got, str) and "φ 0.200 rad" in got
+
+
+def test_the_loop_calibrates_swings_up_catches_and_shows_it() -> None:
+    """The control loop (faster than real time, against the simulator behind the HardwareInterface) with a swing-up:
+    idle → calibrating (1 s) → swinging_up → balancing; the calibration goes to the log sink as metadata before
+    the swing-up starts; the logged θ is the device's reading; the dashboard shows the state and its hint."""
+    from rich.console import Console
+    from test_run_loop import RATE, SimDevice
+
+    from furuta_rt.control.controller import Controller
+    from furuta_rt.model.rig import RigModel
+    from furuta_rt.runtime.dashboard import render
+    from furuta_rt.runtime.loop import ControlLoop, LoopSettings
+    from furuta_rt.runtime.records import TICK_RECORD
+
+    rig = load_rig("thesis")
+    rig = rig.model_copy(update={"swing_up": rig.swing_up.model_copy(update={"enabled": True})})
+    dev = SimDevice(rig, x0=(math.pi, 0.0, 0.0, 0.0))
+    items: list[tuple] = []
+    snaps: list[dict] = []
+
+    class Sink:
+        def __init__(self, into: list) -> None:
+            self.into = into
+
+        def put_nowait(self, item: object) -> None:
+            self.into.append(item)
+
+    loop = ControlLoop(
+        dev, Controller.from_rig(rig), Supervisor(SupervisorLimits.from_config(rig.safety, RATE, rig.swing_up)),
+        LoopSettings(rate_hz=RATE, duration=7.0, link_timeout_s=0.004), full_scale=rig.actuator.limit,
+        calibration=RigModel.from_config(rig).calibration, log=Sink(items), dashboard=Sink(snaps),
+        swing_up=rig.swing_up,
+    )
+    r = loop.run()
+    assert r.end == "duration" and r.catches == 1 and r.falls == 0
+    assert r.first_catch_s == pytest.approx(4.37, abs=0.3)  # the simulation of test_swingup (4.37 s frictionless)
+    kinds = [it[0] for it in items]
+    meta = kinds.index("metadata")
+    assert items[meta][1] == "calibration" and abs(float(items[meta][2]["theta_zero"])) < 1e-3
+    ticks = [rec for it in items if it[0] == "ticks" for rec in it[1]]
+    state = [STATE_NAMES[rec[TICK_RECORD.index("state")]] for rec in ticks]
+    # one second of samples: the 500th completes the calibration and its tick already swings up
+    assert state[0] == "calibrating" and state.count("calibrating") == RATE - 1
+    first_swing = state.index("swinging_up")
+    assert all(s == "balancing" for s in state[state.index("balancing"):])
+    assert sum(len(it[1]) for it in items[:meta] if it[0] == "ticks") <= first_swing  # calibration logged first
+    theta = np.array([rec[TICK_RECORD.index("theta")] for rec in ticks])
+    assert np.all(np.abs(np.abs(theta[:RATE]) - math.pi) < 0.01)  # the device's reading: hanging near ±π
+    swinging = next(s for s in snaps if s["state"] == "swinging_up")
+    console = Console(record=True, width=140)
+    console.print(render(swinging))
+    console.print(render(snaps[-1]))
+    text = console.export_text()
+    assert "SWINGING_UP" in text and "swinging up: energy control" in text and "BALANCING" in text, text

@@ -73,9 +73,10 @@ STATE_HINTS: dict[str, Callable[[dict[str, Any], DashboardInfo], str]] = {
     "armed": _hint_armed,
     "balancing": _hint_balancing,
     "tripped": _hint_tripped,
-    "calibrating": lambda snap, info: "calibrating: hold still while the encoders are zeroed",
-    "swinging_up": lambda snap, info: (f"swinging up: energy pumping until θ is within {info.arm_theta:g} rad, "
-                                       "then balancing"),
+    "calibrating": lambda snap, info: ("calibrating: the pendulum must hang still for about a second (θ's zero from "
+                                       "hanging, the arm's zero); a moving pendulum is refused"),
+    "swinging_up": lambda snap, info: ("swinging up: energy control pumps the pendulum to the upright energy; balancing "
+                                       "takes over in the catch region (|θ| and energy, rig [swing_up])"),
 }
 """Per supervisor state: the line saying what it waits for or what ends it."""
 

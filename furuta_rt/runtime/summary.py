@@ -183,7 +183,7 @@ def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_pa
             f"  balancing (after its first second): std θ {r.theta.std:.5f} rad, std φ {r.phi.std:.5f} rad, "
             f"std u {r.u.std:.4f}, mean u_comp {r.u_comp.mean:+.4f}"
         )
-    elif r.balancing_ticks == 0:
+    elif r.balancing_ticks == 0 and su is None:
         lines.append("  never balanced: the pendulum was not brought within the arming window (|θ| < arm_theta)")
     lines += [line for line in (_limit_cycle_line(r), _injected_line(injected)) if line]
     if limits:
