@@ -185,8 +185,8 @@ class Diagnosis:
         }
 
 
-FIT_KEYS = ("metric", "nominal", "augmented", "verdict", "paired_t", "nominal_diverged", "augmented_diverged", "windows",
-            "window_times_s", "horizon_s")
+FIT_KEYS = ("metric", "nominal", "augmented", "verdict", "paired_t", "paired_t_log", "nominal_diverged",
+            "augmented_diverged", "windows", "window_times_s", "horizon_s")
 
 
 def plain(x: object) -> object:

@@ -182,6 +182,20 @@ def above_floor(ctx: Context, em, y: np.ndarray, seed: int = 0) -> bool:
     return band_t(y, full, rows, ctx.prep.dt, ctx.states(em.equation).filt.sigma)[0] > 1.0
 
 
+def excess_removed(ms_nominal: float, ms_augmented: float, ms_floor: float) -> float:
+    """The share of the nominal residual's excess over the noise floor (in mean square) that the effects remove."""
+    excess_nom = ms_nominal - ms_floor
+    return 1.0 - max(ms_augmented - ms_floor, 0.0) / excess_nom if excess_nom > 0 else 0.0
+
+
+def removes_excess(ctx: Context, em, y_nominal: np.ndarray, y_augmented: np.ndarray, seed: int = 0) -> float:
+    """excess_removed for the residuals (on the grid) of the equation model ``em``, its floor drawn as ``assess``."""
+    rows = em.row_mask
+    floor = noise.draws(ctx, em.equation, seed=seed)[:, rows]
+    return excess_removed(float(np.mean(y_nominal[rows] ** 2)), float(np.mean(y_augmented[rows] ** 2)),
+                          float(np.mean(floor**2)))
+
+
 def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x**2))) if x.size else float("nan")
 
@@ -218,9 +232,7 @@ def assess(ctx: Context, ems: dict, res: dict, seed: int = 0, found: list | None
         ms_floor = float(np.mean(floor**2))
         v = EquationVerdict(eq, "", _rms(y_nom[rows]) / scale, _rms(y_aug[rows]) / scale, np.sqrt(ms_floor) / scale,
                             t_nom, t_aug, effects=effects, band_nominal=band_nom, band_augmented=band_aug)
-        excess_nom = v.residual_nominal**2 - v.noise_floor**2
-        excess_aug = max(v.residual_augmented**2 - v.noise_floor**2, 0.0)
-        removed = 1.0 - excess_aug / excess_nom if excess_nom > 0 else 0.0
+        removed = excess_removed(v.residual_nominal**2, v.residual_augmented**2, v.noise_floor**2)
         if t_nom <= T_CRIT and not effects:
             v.verdict = "consistent"
         elif effects and t_aug <= T_CRIT:  # effects selected are significant (select.py) even when the size is not

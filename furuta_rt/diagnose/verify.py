@@ -211,12 +211,21 @@ def predict(rig: RigConfig, effects: Effects | list[Effects], prep: Prepared, fi
 
 def compare(nominal: Prediction, augmented: Prediction, t_min: float = T_DIFFERENT) -> dict:
     """The augmented model's prediction against the nominal one's over the same windows: "diverges" when it diverges
-    in more windows, else "improved"/"worse" when the paired t of the per-window NRMSE reaches ``t_min``,
-    else "unchanged"."""
+    in more windows; else "improved"/"worse" when its mean NRMSE is lower/higher and the difference is significant —
+    the paired t of the per-window NRMSE reaches ``t_min``, or that of their logarithms does (a window's error ratio:
+    the per-window errors of an unstable plant are heavy-tailed, and two windows where the nominal model runs away
+    must not hide a lower error in all the others), or the nominal model diverges in windows where it does not; else
+    "unchanged"."""
     dn, da = int(nominal.diverged.sum()), int(augmented.diverged.sum())
     t = paired_t(nominal.per_window, augmented.per_window) if nominal.windows > 1 else 0.0
-    verdict = ("diverges" if da > dn else "improved" if t >= t_min else "worse" if t <= -t_min else "unchanged")
-    return {"verdict": verdict, "paired_t": t, "nominal_diverged": dn, "augmented_diverged": da}
+    t_log = 0.0
+    if nominal.windows > 1 and np.all(nominal.per_window > 0) and np.all(augmented.per_window > 0):
+        t_log = paired_t(np.log(nominal.per_window), np.log(augmented.per_window))
+    better, poorer = augmented.nrmse < nominal.nrmse, augmented.nrmse > nominal.nrmse
+    verdict = ("diverges" if da > dn else
+               "improved" if better and (t >= t_min or t_log >= t_min or dn > da) else
+               "worse" if poorer and (t <= -t_min or t_log <= -t_min) else "unchanged")
+    return {"verdict": verdict, "paired_t": t, "paired_t_log": t_log, "nominal_diverged": dn, "augmented_diverged": da}
 
 
 def _rms(parts: list[np.ndarray]) -> float:
