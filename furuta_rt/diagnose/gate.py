@@ -54,6 +54,7 @@ MIN_RISE = 0.01  # ... and the effect raises the prediction error by at least th
 MIN_EXTRA_DIVERGED = 2  # or the effect makes at least this many more windows diverge
 ID = "inverse dynamics"
 EXEMPT = ("stick windows", "peak windows", "free decay")  # sources judged on their own held-out windows
+WINDOW_STAGES = ("stick windows", "peak windows")  # ... of which these must also predict in a suspect equation
 BAND_FACTOR = 2.0  # the band test's kernel is this many times wider than the equation's
 BAND_SHARE = 0.5  # an effect's value may move by less than this share of its departure from the nominal model ...
 BAND_Z = 4.0  # ... or by less than this many combined standard errors
@@ -343,10 +344,11 @@ def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResu
     # and must predict better
     suspect = [eq for eq in specs if any(m["equation"] == eq for m in moved) or (
         any(f.equation == eq and f.source == ID for f in found) and _physics_missing(ctx, ems[eq], res[eq], opts))]
-    for eq in suspect:
-        for f in [f for f in found if f.equation == eq and f.source == ID]:
+    for eq in suspect:  # the window stages' effects too: sticks held at a count by a dry friction of 1e-5 N m can
+        # stand in for a model that creeps (a pendulum-length error), and are no evidence once the equation is suspect
+        for f in [f for f in found if f.equation == eq and f.source in (ID, *WINDOW_STAGES)]:
             rest = [g for g in found if g is not f]
-            without, _ = gate.predict(rest, {**specs, eq: specs[eq].without(f.name)})
+            without, _ = gate.predict(rest, {**specs, eq: specs[eq].without(f.name)} if f.source == ID else specs)
             t = paired_t(without.per_window, current.per_window) if current.windows > 1 else 0.0
             gain = (without.nrmse - current.nrmse) / without.nrmse if without.nrmse > 0 else 0.0
             if t < verify.T_DIFFERENT and gain < MIN_PREDICTIVE_GAIN:  # few windows: a large gain is evidence too
