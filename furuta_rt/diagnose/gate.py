@@ -59,7 +59,7 @@ BAND_FACTOR = 2.0  # the band test's kernel is this many times wider than the eq
 BAND_SHARE = 0.5  # an effect's value may move by less than this share of its departure from the nominal model ...
 BAND_Z = 4.0  # ... or by less than this many combined standard errors
 MIN_PREDICTIVE_GAIN = 0.05  # an effect that must earn its place stays when it lowers the prediction error this much
-EXPLAINS = 0.9  # effects removing this share of an equation's excess over the floor are not suspected as stand-ins
+EXPLAINS_ALONE = 0.5  # an effect removing this share of its equation's excess by itself is not suspected as a stand-in
 
 
 @dataclass
@@ -268,18 +268,28 @@ def band_check(ctx: Context, ems: dict[str, EquationModel], res: dict[str, Equat
     return out
 
 
-def _physics_missing(ctx: Context, em: EquationModel, r: EquationResult, opts: Options) -> bool:
-    """Whether the equation's residual with its effects stays above its noise floor (verdict.above_floor) while they
-    remove less than EXPLAINS of its excess over the floor: then what they fit may stand in for the missing physics.
-    Effects that remove nearly all of the excess (a pendulum damping taking 2.6 % of the torque scale to 0.2 % on a
-    swing-up, where the floor is 0.1 %) are what is missing, not a stand-in."""
-    from furuta_rt.diagnose.verdict import above_floor, removes_excess
+def _above_floor(ctx: Context, em: EquationModel, r: EquationResult, opts: Options) -> bool:
+    from furuta_rt.diagnose.verdict import above_floor
 
     ev = r.selected
-    y = em.residual(ev.spec, ev.fit.coef)
-    if not above_floor(ctx, em, y, opts.seed):
+    return above_floor(ctx, em, em.residual(ev.spec, ev.fit.coef), opts.seed)
+
+
+def _explains_alone(ctx: Context, em: EquationModel, r: EquationResult, name: str, opts: Options) -> bool:
+    """Whether the inverse-dynamics effect ``name`` by itself removes EXPLAINS_ALONE of its equation's excess over the
+    noise floor (the selected model against it without ``name``, verdict.removes_excess): such an effect is what is
+    missing, not a stand-in for it (a pendulum damping taking 2.6 % of the torque scale to 0.2 % on a swing-up where
+    the floor is 0.1 %), and stays in a suspect equation without having to predict better."""
+    from furuta_rt.diagnose.verdict import removes_excess
+
+    ev = r.selected
+    if name not in ev.spec.effects:
         return False
-    return removes_excess(ctx, em, em.target(em.spec0()), y, opts.seed) < EXPLAINS
+    y_nom = em.target(em.spec0())
+    without = em.evaluate(ev.spec.without(name))
+    share = (removes_excess(ctx, em, y_nom, em.residual(ev.spec, ev.fit.coef), opts.seed)
+             - removes_excess(ctx, em, y_nom, em.residual(without.spec, without.fit.coef), opts.seed))
+    return share >= EXPLAINS_ALONE
 
 
 def _band_reason(b: dict) -> str:
@@ -340,13 +350,15 @@ def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResu
         return Gated(found, moved, plan, nominal, nominal, [], opts.substep_hz)
     current, params = gate.predict(found, specs) if found else (nominal, [])
     # an equation shown to hold dynamics outside eq. 4 (the band test), or whose residual stays above the noise floor
-    # with its effects while they remove little of its excess (_physics_missing): they may stand in for what is missing,
-    # and must predict better
+    # with its effects (verdict.above_floor): its effects may stand in for what is missing, and must predict better —
+    # except one that by itself removes most of the excess (_explains_alone)
     suspect = [eq for eq in specs if any(m["equation"] == eq for m in moved) or (
-        any(f.equation == eq and f.source == ID for f in found) and _physics_missing(ctx, ems[eq], res[eq], opts))]
+        any(f.equation == eq and f.source == ID for f in found) and _above_floor(ctx, ems[eq], res[eq], opts))]
     for eq in suspect:  # the window stages' effects too: sticks held at a count by a dry friction of 1e-5 N m can
         # stand in for a model that creeps (a pendulum-length error), and are no evidence once the equation is suspect
         for f in [f for f in found if f.equation == eq and f.source in (ID, *WINDOW_STAGES)]:
+            if f.source == ID and _explains_alone(ctx, ems[eq], res[eq], f.name, opts):
+                continue
             rest = [g for g in found if g is not f]
             without, _ = gate.predict(rest, {**specs, eq: specs[eq].without(f.name)} if f.source == ID else specs)
             t = paired_t(without.per_window, current.per_window) if current.windows > 1 else 0.0

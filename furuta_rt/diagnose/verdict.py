@@ -561,7 +561,9 @@ def summary(verdicts: dict[str, EquationVerdict]) -> str:
         else:
             u = v.unexplained or {}
             by = f" after {', '.join(v.effects)}" if v.effects else ""
-            text = (f"{name} {v.verdict.replace('_', ' ')}: {pct(u.get('share', 0.0))} of its torque scale left{by} "
+            left = (f"{pct(u.get('share', 0.0))} of its torque scale left{by}" if v.residual_augmented > v.noise_floor else
+                    f"within the noise floor in size{by}, not in its signature")
+            text = (f"{name} {v.verdict.replace('_', ' ')}: {left} "
                     f"(residual {pct(v.residual_nominal)} → {pct(v.residual_augmented)}, noise floor {pct(v.noise_floor)})")
             if v.remainder is not None:
                 top = sorted(((k, c) for k, c in v.remainder.correlations.items() if k != "1"), key=lambda kv: -abs(kv[1]))
