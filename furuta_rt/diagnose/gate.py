@@ -27,6 +27,10 @@ dynamics outside eq. 4, the remaining inverse-dynamics effects must earn their p
 with it predicts the held-out windows better than without it (paired t ≥ verify.T_DIFFERENT, or a prediction error
 lower by MIN_PREDICTIVE_GAIN: a single step has too few windows for a t); an effect that other
 dynamics can mimic (an input saturation clipping the fast peaks a compliance filters) would otherwise stay.
+
+After the band test and before the gate, a θ offset below half the θ sensor's resolution (its count or its noise,
+``theta_resolution``) is moved out: no sensor offset can be told from where the sensor's own zero falls (a swing-up
+fitted 2e-5 rad, a fortieth of a count, to significance).
 """
 
 from __future__ import annotations
@@ -59,6 +63,7 @@ BAND_FACTOR = 2.0  # the band test's kernel is this many times wider than the eq
 BAND_SHARE = 0.5  # an effect's value may move by less than this share of its departure from the nominal model ...
 BAND_Z = 4.0  # ... or by less than this many combined standard errors
 MIN_PREDICTIVE_GAIN = 0.05  # an effect that must earn its place stays when it lowers the prediction error this much
+THETA_RESOLUTION_SHARE = 0.5  # a θ offset below this share of the θ sensor's resolution is not reported
 EXPLAINS_ALONE = 0.5  # an effect removing this share of its equation's excess by itself is not suspected as a stand-in
 
 
@@ -292,6 +297,11 @@ def _explains_alone(ctx: Context, em: EquationModel, r: EquationResult, name: st
     return share >= EXPLAINS_ALONE
 
 
+def theta_resolution(rig: RigConfig) -> float:
+    """The θ sensor's resolution (rad): its count (ADC or encoder) or its noise, whichever is larger."""
+    return max(float(rig.sensors.theta_rad_per_count), float(rig.sensors.theta_noise))
+
+
 def _band_reason(b: dict) -> str:
     return (f"its {b['param']} depends on the frequency band: {b['value']:.4g} ± {b['se']:.2g} with the "
             f"{1000 * b['sigma']:.0f} ms kernel, {b['value_wide']:.4g} ± {b['se_wide']:.2g} with the "
@@ -344,6 +354,14 @@ def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResu
         gone = [f for f in found if f.source == ID and f.name in bad]
         drop(gone, {n: _band_reason(b) for n, b in bad.items()}, bad, key="band")
         notes.append("moved out (their value depends on the frequency band): " + ", ".join(f.name for f in gone))
+    small = [f for f in found if f.name == "theta_offset" and f.source == ID
+             and abs(f.params["offset"]) < THETA_RESOLUTION_SHARE * theta_resolution(ctx.rig)]
+    if small:  # below what the θ sensor resolves: indistinguishable from where the sensor's own zero falls
+        res_theta = theta_resolution(ctx.rig)
+        drop(small, {f.name: (f"{f.params['offset']:.2g} rad is below half the θ sensor's resolution ({res_theta:.2g} rad: "
+                              "its count or its noise): no sensor offset can be told from where its zero falls")
+                     for f in small}, {f.name: {"offset": f.params["offset"], "resolution": res_theta} for f in small},
+             key="resolution")
     nominal, _ = gate.predict([], specs)
     if not plan.starts:
         notes.append("the recording has no window to predict; the prediction gate and metric are skipped")

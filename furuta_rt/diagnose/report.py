@@ -79,7 +79,8 @@ def text(d: Diagnosis) -> list[str]:
     lines.append(f"located: {d.located}")
     f = d.fit
     lines.append(f"fit: {f['verdict']} ({f['metric']}; {f['windows']} windows of {f['horizon_s']:.2f} s, paired t = "
-                 f"{f['paired_t']:.1f}, diverged {f['nominal_diverged']} → {f['augmented_diverged']}): "
+                 f"{f['paired_t']:.1f} (of the logarithms {f.get('paired_t_log', float('nan')):.1f}), diverged "
+                 f"{f['nominal_diverged']} → {f['augmented_diverged']}): "
                  f"nominal {f['nominal']:.4f} (θ {f['nominal_theta']:.4f}, φ {f['nominal_phi']:.4f}) → augmented "
                  f"{f['augmented']:.4f} (θ {f['augmented_theta']:.4f}, φ {f['augmented_phi']:.4f})")
     for e in d.not_predictive:
