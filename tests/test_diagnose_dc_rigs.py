@@ -78,3 +78,20 @@ def test_a_voltage_rig_swing_up_from_an_independent_simulator(name: str, tmp_pat
     assert s.false == [], s.false
     assert d["fit"]["verdict"] == "improved", d["fit"]
     assert d["equations"]["arm"]["verdict"] == "explained"
+
+
+def test_a_balancing_recording_claims_no_arm_combination_it_cannot_pin(tmp_path) -> None:
+    """30 s of the independent QUBE-shaped rig balancing, nothing changed from its datasheet: nothing found, both
+    equations consistent, and the arm's joint calibration either gives the true speed per volt and time constant
+    (within 20 %) or says it pins nothing — the arm barely moves, and the joint fit had traded gain, inertia and
+    damping against the pendulum's reaction (arm inertia −3.2e-5 kg m²) and reported a speed per volt of 37 ± 1.4
+    rad/s per V against a true 24."""
+    case = next(c for c in dc.cases() if c.name == "qube/balance null")
+    d = diagnose(dc.generate(case, 30.0, tmp_path), load_rig(case.shape), Options(closed_loop=False)).to_json()
+    assert d["effects"] == []
+    assert {eq: v["verdict"] for eq, v in d["equations"].items()} == {"arm": "consistent", "pendulum": "consistent"}
+    ident = d["identification"]
+    s = score_realistic(case, d, 0.0)  # type: ignore[arg-type]
+    assert ident.get("unphysical") or all(s.detected.values()), (ident, s.errors)
+    if ident.get("unphysical"):
+        assert ident["combinations"] == {} and not any(p["pinned"] for p in ident["parameters"].values())

@@ -112,10 +112,26 @@ def identification(em: EquationModel, selected: Evaluation) -> dict | None:
     if "speed_per_command" in full and np.isfinite(full["speed_per_command"]):
         combos["speed_per_command"] = "rad/s per N m"
     combinations = {n: {"value": full[n], "se": se[n], "unit": unit} for n, unit in combos.items()}
+    unphysical = _unphysical(full)
+    if unphysical:  # the joint fit traded the three against the pendulum's reaction: nothing of it is pinned
+        for p in params.values():
+            p["pinned"] = False
+        combinations = {}
     return {"parameters": params, "combinations": combinations, "inertia_at_rows": m22,
+            **({"unphysical": unphysical} if unphysical else {}),
             "method": "arm equation: input gain, arm inertia and damping fitted jointly with the selected effects "
                       "(value, se: the selected effects' own where they contain the parameter, the joint fit under "
                       "'joint'; pinned and the combinations: the joint fit); se: jackknife over the held-out time blocks"}
+
+
+def _unphysical(joint: dict[str, float]) -> str:
+    """Why the joint fit's gain, arm inertia or damping is impossible (≤ 0), or '' when none is. Such a fit (a balancing
+    recording where the arm barely moves: an arm inertia of −3.2e-5 kg m² with a gain of 0.62, whose 'pinned' speed
+    per volt came out 37 ± 1.4 against a true 24) pins nothing: its combinations are not reported."""
+    bad = [f"{name.replace('_', ' ')} {joint[name]:.3g}" for name in ("input_gain", "arm_inertia", "arm_damping")
+           if not joint[name] > 0]
+    return ("the joint fit gives " + ", ".join(bad) + " (≤ 0, impossible): this recording does not pin the arm's gain, "
+            "inertia and damping, nor their combinations") if bad else ""
 
 
 COMBINATION_MEMBERS: dict[str, tuple[str, str]] = {  # the two parameters (effect names) each combination ties together

@@ -194,6 +194,8 @@ def html_page(data: dict[str, Any], images: list[str], lines: list[str]) -> str:
             body.append(_table(["parameter", "value ± se", "pinned"], [
                 [_e(k), f"{_num(v.get('value'))} ± {_num(v.get('se'), 2)}", "yes" if v.get("pinned") else "no"]
                 for k, v in params.items()]))
+        if ident.get("unphysical"):
+            body.append(f"<p>{_e(ident['unphysical'])}</p>")
         combos = ident.get("combinations") or {}
         if combos:
             body.append(_table(["combination", "value ± se", "unit"], [
