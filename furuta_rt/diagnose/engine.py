@@ -376,7 +376,29 @@ def balancing_span(rec: Recording, notes: list[str]) -> Recording:
     i = int(np.argmax(stops - starts))
     a, b = int(starts[i]), int(stops[i])
     notes.append(f"diagnosed the longest balancing stretch of the log, t = {rec.t[a]:.1f}–{rec.t[b - 1]:.1f} s")
-    return rec.slice(a, b)
+    out = rec.slice(a, b)
+    out.meta["stretch_of_log"] = True
+    return out
+
+
+def moving_start(rec: Recording) -> str:
+    """Why a stretch cut out of a log does not start as a run does (at rest near upright with the arm near its zero),
+    or '' when it does: a balancing stretch after a swing-up's catch starts with the pendulum and the arm moving and
+    the arm turns away from zero, which a closed-loop re-simulation from rest (verify.resimulate) cannot reproduce."""
+    k = min(len(rec) - 1, 10)
+    if k < 2:
+        return ""
+    span = float(rec.t[k] - rec.t[0])
+    phi_dot = abs(float(rec.phi[k] - rec.phi[0])) / span
+    theta_dot = abs(float(rec.theta[k] - rec.theta[0])) / span
+    if phi_dot > START_REST or theta_dot > START_REST or abs(float(rec.phi[0])) > START_PHI:
+        return (f"the balancing stretch starts moving (φ = {float(rec.phi[0]):+.2f} rad, |φ̇| ≈ {phi_dot:.2f} rad/s, "
+                f"|θ̇| ≈ {theta_dot:.2f} rad/s: after a swing-up's catch)")
+    return ""
+
+
+START_REST = 0.5  # rad/s: a stretch starting faster than this is not at rest
+START_PHI = 1.0  # rad: ... or with the arm this far from its zero
 
 
 ARM_SIGMAS = (0.03, 0.04, 0.05)
@@ -775,6 +797,10 @@ def _prediction_metric(ctx: Context, gated: gate.Gated, found: list[Found], keep
 
 
 def _closed_loop(rec: Recording, rig: RigConfig, found: list[Found], opts: Options, notes: list[str]) -> dict | None:
+    why = moving_start(rec) if rec.meta.get("stretch_of_log") else ""
+    if why:
+        notes.append(f"{why}; the closed-loop re-simulation starts from rest and is skipped")
+        return None
     own, r2 = verify.is_own_closed_loop(rec, rig)
     if not own:
         if r2 > 0.5:
