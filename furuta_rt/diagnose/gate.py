@@ -354,10 +354,10 @@ def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResu
         gone = [f for f in found if f.source == ID and f.name in bad]
         drop(gone, {n: _band_reason(b) for n, b in bad.items()}, bad, key="band")
         notes.append("moved out (their value depends on the frequency band): " + ", ".join(f.name for f in gone))
+    res_theta = theta_resolution(ctx.rig)
     small = [f for f in found if f.name == "theta_offset" and f.source == ID
-             and abs(f.params["offset"]) < THETA_RESOLUTION_SHARE * theta_resolution(ctx.rig)]
+             and abs(f.params["offset"]) < THETA_RESOLUTION_SHARE * res_theta]
     if small:  # below what the θ sensor resolves: indistinguishable from where the sensor's own zero falls
-        res_theta = theta_resolution(ctx.rig)
         drop(small, {f.name: (f"{f.params['offset']:.2g} rad is below half the θ sensor's resolution ({res_theta:.2g} rad: "
                               "its count or its noise): no sensor offset can be told from where its zero falls")
                      for f in small}, {f.name: {"offset": f.params["offset"], "resolution": res_theta} for f in small},

@@ -127,12 +127,17 @@ def lqr(model: Lagrangian) -> np.ndarray:
         thdd, phdd = model.accelerations(x[0], x[1], x[3], 0.0, u)
         return np.array([x[1], thdd, x[3], phdd])
 
+    return lqr_about_upright(f, (10.0, 0.1, 3.0, 0.3), 2.0)
+
+
+def lqr_about_upright(f, q: tuple[float, float, float, float], r: float) -> np.ndarray:
+    """K of u = −K x for ẋ = f(x, u) linearised by central differences at x = 0, u = 0 (weights diag(q), r)."""
     h = 1e-6
     A = np.column_stack([(f(h * e, 0.0) - f(-h * e, 0.0)) / (2 * h) for e in np.eye(4)])
     B = ((f(np.zeros(4), h) - f(np.zeros(4), -h)) / (2 * h))[:, None]
-    Q, R = np.diag([10.0, 0.1, 3.0, 0.3]), np.array([[2.0]])
+    Q, R = np.diag(q), np.array([[r]])
     P = linalg.solve_continuous_are(A, B, Q, R)
-    return (np.linalg.solve(R, B.T @ P)).ravel()
+    return np.linalg.solve(R, B.T @ P).ravel()
 
 
 def rk4(f, x: list[float], dt: float, steps: int) -> list[float]:

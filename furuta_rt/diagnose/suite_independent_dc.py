@@ -30,9 +30,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy import linalg
 
-from furuta_rt.diagnose.suite_independent import G, Lagrangian, rk4
+from furuta_rt.diagnose.suite_independent import G, Lagrangian, lqr_about_upright, rk4
 from furuta_rt.recording import Recording
 
 RATE = 500.0
@@ -187,12 +186,7 @@ def lqr_gain(plant: Plant) -> np.ndarray:
         thdd, phdd = plant.lag.accelerations(x[0], x[1], x[3], -case.pendulum_viscous * x[1], tau)
         return np.array([x[1], thdd, x[3], phdd])
 
-    h = 1e-6
-    A = np.column_stack([(f(h * e, 0.0) - f(-h * e, 0.0)) / (2 * h) for e in np.eye(4)])
-    B = ((f(np.zeros(4), h) - f(np.zeros(4), -h)) / (2 * h))[:, None]
-    Q, R = np.diag([20.0, 0.5, 4.0, 0.2]), np.array([[1.0]])
-    P = linalg.solve_continuous_are(A, B, Q, R)
-    return np.linalg.solve(R, B.T @ P).ravel()
+    return lqr_about_upright(f, (20.0, 0.5, 4.0, 0.2), 1.0)
 
 
 class SwingUp:

@@ -264,9 +264,8 @@ def assess(ctx: Context, ems: dict, res: dict, seed: int = 0, found: list | None
             y_aug, rows, _, _ = remaining[eq]
             v.remainder = locate(ctx, eq, y_aug, rows)
             excess = max(v.residual_augmented**2 - v.noise_floor**2, 0.0)
-            excess_nom = v.residual_nominal**2 - v.noise_floor**2
-            v.unexplained = {"share": float(np.sqrt(excess)),
-                             "removed_by_effects": 1.0 - excess / excess_nom if v.effects and excess_nom > 0 else 0.0,
+            removed = excess_removed(v.residual_nominal**2, v.residual_augmented**2, v.noise_floor**2)
+            v.unexplained = {"share": float(np.sqrt(excess)), "removed_by_effects": removed if v.effects else 0.0,
                              "where": where(v.remainder), "signature": signature(ctx, y_aug, rows, eq),
                              "possible_causes": [c for c in [modes[eq]] if c is not None]
                              + [c for c in causes if c["removes"].get(eq, 0.0) > 0]}
