@@ -106,16 +106,21 @@ def test_run_log_refuses_an_existing_recording(tmp_path: Path) -> None:
 def test_run_log_force_replaces_the_recording_only_once_the_device_answers(tmp_path: Path) -> None:
     old = _log(tmp_path / "old.mcap")
     before = old.read_bytes()
-    # the device is missing: the run never starts, the old recording stays as it was
+    summary = tmp_path / "old.json"
+    summary.write_text('{"an earlier summary": true}\n')
+    # the device is missing: the run never starts, the old recording and summary stay as they were
     proc = _cli(tmp_path, "run", "--port", str(tmp_path / "ttyNOPE"), "--duration", "1", "--no-rt", "--no-tui",
-                "--log", "old.mcap", "--force")
+                "--log", "old.mcap", "--summary-json", "old.json", "--force")
     _one_line_error(proc, "ttyNOPE", "does not exist")
-    assert old.read_bytes() == before
-    # a run that balances replaces it
-    proc = _cli(tmp_path, "run", "--mock", "--duration", "1", "--no-rt", "--no-tui", "--log", "old.mcap", "--force")
+    assert old.read_bytes() == before and summary.read_text() == '{"an earlier summary": true}\n'
+    # a run that balances replaces both
+    proc = _cli(tmp_path, "run", "--mock", "--duration", "1", "--no-rt", "--no-tui", "--log", "old.mcap",
+                "--summary-json", "old.json", "--force")
     assert proc.returncode == 0, proc.stderr
     new = read_log(old)
     assert not new.converted and new.n_ticks >= 400
+    assert json.loads(summary.read_text())["ticks"] >= 400
+    assert _files(tmp_path) == ["old.json", "old.mcap"]
 
 
 def test_run_log_must_be_an_mcap_name(tmp_path: Path) -> None:

@@ -39,3 +39,12 @@ def parse_gains(text: str | None) -> list[float] | None:
     if bad:
         raise UserError(f"--gains {text!r}: {', '.join(bad)} is not a finite number (e.g. 60,20,10,4)")
     return gains
+
+
+def add_force_argument(parser: argparse.ArgumentParser, outputs: str,
+                       when: str = "swapped in only once the new one is complete") -> None:
+    """``--force``: the one way to let a command replace existing files (``outputs``: which, in words;
+    ``when``: when the old ones are replaced)."""
+    parser.add_argument("--force", action="store_true",
+                        help=f"replace existing {outputs} ({when}); without it an existing output file is refused "
+                        "(exit 2) before any work is done")

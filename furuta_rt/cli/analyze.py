@@ -12,8 +12,9 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from furuta_rt.cli._common import add_config_argument, parse_gains, rig_from_args
+from furuta_rt.cli._common import add_config_argument, add_force_argument, parse_gains, rig_from_args
 from furuta_rt.errors import UserError
+from furuta_rt.io.output import claim_outputs, replace_when_done
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -38,12 +39,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "Bessel path, observer, delay, saturation; no noise) or both (default: ideal)")
     lc.add_argument("--plot", metavar="FILE.png", help="write the Nyquist plot with the describing-function locus")
     lc.add_argument("--json", action="store_true", help="print one JSON object")
+    add_force_argument(lc, "a --plot file")
     lc.set_defaults(func=run_limit_cycle)
 
 
 def run_limit_cycle(args: argparse.Namespace) -> int:
     from furuta_rt.analysis.limit_cycle import describing_function_report, limit_cycle_report
 
+    if args.plot and Path(args.plot).suffix.lower() != ".png":
+        raise UserError(f"--plot {args.plot}: give a .png file name")
+    claim_outputs([("--plot", args.plot)], force=args.force)
     rig = rig_from_args(args)
     gains = parse_gains(args.gains)
     if args.fc is not None and not (math.isfinite(args.fc) and args.fc > 0):
@@ -59,10 +64,9 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
         from furuta_rt.analysis.figures import nyquist_figure
 
         path = Path(args.plot)
-        if path.suffix.lower() != ".png":
-            raise UserError(f"--plot {path}: give a .png file name")
         lc, _ = describing_function_report(rig, np.asarray(out["gains"]), out["fc"])
-        nyquist_figure([(f"{out['rig']} rig, u = {_law(out['gains'])}\nCoulomb Fc = {out['fc']:g} N m", lc)], path)
+        with replace_when_done(path, overwrite=args.force, flag="--plot") as tmp:
+            nyquist_figure([(f"{out['rig']} rig, u = {_law(out['gains'])}\nCoulomb Fc = {out['fc']:g} N m", lc)], tmp)
         out["plot"] = str(path)
     if args.json:
         print(json.dumps(out))

@@ -7,11 +7,12 @@ from pathlib import Path
 
 from rich.console import Console
 
+from furuta_rt.cli._common import add_force_argument
 from furuta_rt.config import load_rig
 from furuta_rt.errors import UserError
 from furuta_rt.io.mapping import SHIPPED_MAPPINGS, load_mapping
 from furuta_rt.io.mcap_read import is_mcap
-from furuta_rt.io.output import refuse_existing, replace_when_done
+from furuta_rt.io.output import claim_outputs, replace_when_done
 from furuta_rt.io.recordings import output_format, read_recording, write_recording
 from furuta_rt.replay.plot import plot_recording
 from furuta_rt.replay.progress import progress_bar
@@ -27,14 +28,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("input", metavar="INPUT", help="a .csv recording or a .mcap log")
     p.add_argument("-o", "--output", metavar="OUTPUT", required=True,
                    help="OUTPUT.mcap or OUTPUT.csv (an existing file only with --force)")
-    p.add_argument("--force", action="store_true", help="replace an existing OUTPUT (once the new one is complete)")
+    add_force_argument(p, "OUTPUT and --plot files")
     p.add_argument("--mapping", metavar="NAME|FILE", default=None, help="column mapping for another rig's CSV")
     p.add_argument("--map", metavar="FIELD.KEY=VALUE", action="append", default=[],
                    help="override one mapping key, e.g. u.scale=10 or theta.source=angle (repeatable)")
     p.add_argument("--config", metavar="FILE", default=None,
                    help="rig TOML or shipped rig written into the log (default: the mapping's rig, else thesis)")
     p.add_argument("--extra", action="store_true", help="CSV output: also write the extra columns (φ̂̇, u_lin, …)")
-    p.add_argument("--plot", metavar="OUT.png", default=None, help="also plot θ, φ, u, φ̇ of the recording")
+    p.add_argument("--plot", metavar="OUT.png", default=None,
+                   help="also plot θ, φ, u, φ̇ of the recording (an existing file only with --force)")
     p.set_defaults(func=run)
 
 
@@ -46,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     to_log = output_format(dst) == ".mcap"
     if is_mcap(src) and to_log:
         raise UserError(f"{src} is already an MCAP log; to rewrite a log left by a killed run use `furuta-rt repair {src}`")
-    refuse_existing(dst, force=args.force, flag="-o")
+    claim_outputs([("-o", dst), ("--plot", args.plot)], force=args.force, inputs=[src])
     mapping = None
     if args.mapping or args.map:
         if is_mcap(src):
@@ -62,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
         Console(stderr=True, soft_wrap=True).print(f"[yellow]warning:[/] {w}", highlight=False)
     if to_log and rig is None:
         rig = load_rig("thesis")
-    with replace_when_done(dst) as tmp, progress_bar(f"writing {dst.name}") as bar:
+    with replace_when_done(dst, overwrite=args.force, flag="-o") as tmp, progress_bar(f"writing {dst.name}") as bar:
         write_recording(rec, tmp, rig, extra=args.extra, progress=bar)
     unit = "V" if rig is not None and rig.actuator.kind == "dc_motor" else "N m"
     rig_text = f", rig {rig.name}" if to_log and rig else ""
@@ -70,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
     for note in rec.meta.get("notes", []):  # type: ignore[union-attr]
         con.print(f"note: {note}", highlight=False)
     if args.plot:
-        plot_recording(rec, args.plot, title=f"{src.name}", u_unit=unit)
+        with replace_when_done(args.plot, overwrite=args.force, flag="--plot") as tmp:
+            plot_recording(rec, tmp, title=f"{src.name}", u_unit=unit)
         con.print(f"wrote {args.plot}", highlight=False)
     return 0

@@ -9,8 +9,10 @@ from pathlib import Path
 import numpy as np
 from rich.console import Console
 
+from furuta_rt.cli._common import add_force_argument
 from furuta_rt.config import SHIPPED_RIGS, RigConfig, implausible, load_rig
 from furuta_rt.errors import UserError
+from furuta_rt.io.output import claim_directory, claim_outputs, directory_when_done, write_text
 from furuta_rt.recording import Recording
 
 
@@ -39,6 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--theta-filter", metavar="none|RAD_S", default=None,
                    help="the θ channel's Bessel cutoff instead of the config's; 'none' for an encoder on the pendulum")
     p.add_argument("--no-closed-loop", action="store_true", help="skip the closed-loop re-simulation (faster)")
+    add_force_argument(p, "a --json file and an earlier report in --report's directory")
     p.set_defaults(func=run)
 
 
@@ -121,10 +124,15 @@ def with_theta_filter(rig: RigConfig, text: str) -> RigConfig:
 
 def run(args: argparse.Namespace) -> int:
     from furuta_rt.diagnose import Options, diagnose
-    from furuta_rt.diagnose.report import check_directory, text, write_report
+    from furuta_rt.diagnose.report import OUTPUTS, check_directory, text, write_report
 
+    # every output claimed before the diagnosis: a user's files are never overwritten, and a refusal comes first
+    claim_outputs([("--json", args.json)], force=args.force, inputs=[args.recording])
     if args.report:
-        check_directory(Path(args.report))  # before the diagnosis: a user's files are never overwritten
+        check_directory(Path(args.report))
+        claim_directory("--report", args.report, OUTPUTS, force=args.force)
+        if args.json and Path(args.json).name in OUTPUTS and Path(args.json).resolve().parent == Path(args.report).resolve():
+            raise UserError(f"--json {args.json} is one of the report's own files; give it another name")
     rec, rig = load(args.recording, args.config, args.mapping, args.map)
     for problem in implausible(rig):  # a unit mistake, likely; finding what the config gets wrong is the job here
         Console(stderr=True, soft_wrap=True).print(f"furuta-rt diagnose: warning: {problem}; diagnosed as given",
@@ -141,12 +149,13 @@ def run(args: argparse.Namespace) -> int:
             con.print(line, markup=False)
         if args.json:
             try:
-                Path(args.json).write_text(json.dumps(out, indent=1, default=float) + "\n")
+                write_text(args.json, json.dumps(out, indent=1, default=float) + "\n", overwrite=args.force, flag="--json")
             except OSError as err:
                 raise UserError(f"cannot write {args.json}: {err.strerror}") from None
     if args.report:
         try:
-            write_report(d, Path(args.report))
+            with directory_when_done(args.report, OUTPUTS, overwrite=args.force, flag="--report") as tmp:
+                write_report(d, tmp)
         except OSError as err:
             raise UserError(f"cannot write the report into {args.report}: {err.strerror}") from None
         if args.json != "-":

@@ -15,14 +15,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="rewrite an MCAP log that was not closed (killed run) with a summary",
         description="Copy every complete chunk of LOG (messages untouched), its metadata and attachments into a "
         "complete MCAP file with indexes and a summary. Without -o (or with -o LOG) the log is rewritten in place "
-        "and the original kept as LOG.bak. Nothing is replaced or deleted unless the rewrite succeeded.",
+        "and the original kept as LOG.bak (an existing LOG.bak only with --force). Nothing is replaced or deleted "
+        "unless the rewrite succeeded.",
     )
     p.add_argument("log", metavar="LOG.mcap")
     p.add_argument("-o", "--output", metavar="OUT.mcap", default=None,
                    help="write here instead of in place (an existing file only with --force)")
     p.add_argument("--no-backup", action="store_true", help="in place: do not keep the original as LOG.bak")
     p.add_argument("--force", action="store_true",
-                   help="rewrite even a log that was closed properly; replace an existing -o file")
+                   help="rewrite even a log that was closed properly; replace an existing -o file or LOG.bak "
+                   "(without it an existing one is refused, exit 2, before any work)")
     p.set_defaults(func=run)
 
 

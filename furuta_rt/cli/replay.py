@@ -10,10 +10,11 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from furuta_rt.cli._common import parse_gains
+from furuta_rt.cli._common import add_force_argument, parse_gains
 from furuta_rt.config import COMP_MODES, load_rig
 from furuta_rt.io.csv import write_csv
 from furuta_rt.io.mcap_read import log_to_recording, read_log, require_ticks
+from furuta_rt.io.output import claim_outputs, replace_when_done
 from furuta_rt.recording import Recording
 from furuta_rt.replay import ReplayResult, replay_log
 from furuta_rt.replay.plot import plot_recording
@@ -38,6 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--csv", metavar="OUT.csv", default=None, help="write t, θ, θ̇, φ, replayed u and the logged u")
     p.add_argument("--plot", metavar="OUT.png", default=None, help="plot θ, φ, u and the estimated φ̇")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the report")
+    add_force_argument(p, "--csv and --plot files")
     p.set_defaults(func=run)
 
 
@@ -49,6 +51,7 @@ def _recording(rec: Recording, result: ReplayResult) -> Recording:
 def run(args: argparse.Namespace) -> int:
     out = Console(soft_wrap=True)
     err = Console(stderr=True)
+    claim_outputs([("--csv", args.csv), ("--plot", args.plot)], force=args.force, inputs=[args.log])
     t0 = time.perf_counter()
     with progress_bar("reading") as bar:
         log = require_ticks(read_log(args.log, timing=False, progress=bar))
@@ -65,12 +68,14 @@ def run(args: argparse.Namespace) -> int:
     u_rep = result.u[first:]
     stats["u_replayed"] = {"mean": float(np.mean(u_rep)), "std": float(np.std(u_rep))}
     if args.csv:
-        write_csv(_recording(rec, result), args.csv, extra=True)
+        with replace_when_done(args.csv, overwrite=args.force, flag="--csv") as tmp:
+            write_csv(_recording(rec, result), tmp, extra=True)
     if args.plot:
         the_rig = rig or log.rig
         unit = "V" if the_rig is not None and the_rig.actuator.kind == "dc_motor" else "N m"
-        plot_recording(rec, args.plot, u_replayed=result.u, phi_dot_replayed=result.phi_dot_hat,
-                       title=f"{log.path.name}: replay with mode {result.mode}", u_unit=unit)
+        with replace_when_done(args.plot, overwrite=args.force, flag="--plot") as tmp:
+            plot_recording(rec, tmp, u_replayed=result.u, phi_dot_replayed=result.phi_dot_hat,
+                           title=f"{log.path.name}: replay with mode {result.mode}", u_unit=unit)
     failed = result.same_config and not result.converted and not result.exact
     if args.json:
         print(json.dumps({

@@ -17,10 +17,10 @@ import argparse
 import math
 from pathlib import Path
 
-from furuta_rt.cli._common import add_config_argument, parse_gains, rig_from_args
+from furuta_rt.cli._common import add_config_argument, add_force_argument, parse_gains, rig_from_args
 from furuta_rt.config import COMP_MODES, RigConfig
 from furuta_rt.errors import UserError
-from furuta_rt.io.output import probe_writable, refuse_existing
+from furuta_rt.io.output import claim_outputs
 
 MOCK_TIMEOUT_MS = 500.0
 """With --mock the timing trips (link loss, device watchdog, repeated overruns) tolerate stalls up to
@@ -46,8 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds of device time (default: until Ctrl-C)")
     p.add_argument("--log", metavar="FILE.mcap", help="write every tick to this MCAP file (opens in Foxglove); "
                    "an existing file only with --force")
-    p.add_argument("--force", action="store_true", help="replace an existing --log file (it is replaced when the "
-                   "device has answered, not before)")
+    add_force_argument(p, "--log and --summary-json files", "the log once the device has answered, not before")
     p.add_argument("--swing-up", action="store_true", help="start from the pendulum hanging at rest: calibrate θ's zero "
                    "(~1 s still), swing up by energy control, catch and balance; a fall swings up again (the rig's "
                    "swing_up.on_fall); with --mock the mock starts hanging")
@@ -137,14 +136,11 @@ def mock_arguments(args: argparse.Namespace, rig_source: str, rate: int, watchdo
     return out + list(args.mock_arg)
 
 
-def _check_log_argument(path: str, force: bool) -> None:
-    """An MCAP file name, not an existing file unless ``force``, in a place we may write (nothing written)."""
-    suffix = Path(path).suffix.lower()
-    if suffix != ".mcap":
+def _check_log_name(path: str) -> None:
+    """The log is an MCAP file: its name says so."""
+    if Path(path).suffix.lower() != ".mcap":
         raise UserError(f"--log {path}: the log is an MCAP file; give a name ending in .mcap (a CSV of it: "
                         f"furuta-rt convert LOG.mcap -o {Path(path).with_suffix('.csv').name})")
-    refuse_existing(path, force=force, flag="--log")
-    probe_writable(path, "the log")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -159,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
     if args.tui and args.no_tui:
         raise UserError("--tui and --no-tui contradict each other; give one of them")
     if args.log is not None:
-        _check_log_argument(args.log, args.force)
+        _check_log_name(args.log)
+    claim_outputs([("--log", args.log), ("--summary-json", args.summary_json)], force=args.force)
     has_mock_opts = (args.mock_effect or args.mock_fault or args.mock_arg or args.mock_seed is not None
                      or args.mock_firmware is not None)
     if has_mock_opts and not args.mock:
@@ -221,6 +218,7 @@ def run(args: argparse.Namespace) -> int:
         cpu=args.cpu,
         gains=gains,
         summary_json=args.summary_json,
+        force=args.force,
         rig_source=rig_source,
         comp_source=comp_source,
         warnings=warnings,

@@ -76,10 +76,11 @@ class LogWriter:
         *,
         chunk_size: int = 256 * 1024,
         compression: CompressionType = CompressionType.ZSTD,
+        exclusive: bool = False,
     ) -> None:
         self.path = Path(path)
         try:
-            self._fh = self.path.open("wb")
+            self._fh = self.path.open("xb" if exclusive else "wb")  # exclusive: never replace an existing file
         except OSError as err:
             raise UserError(f"cannot write {self.path}: {err.strerror}") from None
         w = Writer(self._fh, chunk_size=chunk_size, compression=compression)

@@ -96,7 +96,8 @@ def repair_log(
 ) -> RepairReport:
     """Rewrite ``path`` with a summary, to ``output`` or in place (the original kept as ``<name>.bak``
     when ``backup``; an ``output`` that is ``path`` itself counts as in place). A complete file is left
-    alone unless ``force``; an existing ``output`` is replaced only with ``force``. Nothing is replaced
+    alone unless ``force``; an existing ``output`` (or, in place, ``<name>.bak``: the original an earlier
+    repair kept) is replaced only with ``force``. Nothing is replaced
     or deleted unless the rewrite succeeded: a log with nothing recoverable leaves every file as it was."""
     src = Path(path)
     if not src.is_file():
@@ -107,16 +108,19 @@ def repair_log(
     if is_complete(src) and not force:
         return RepairReport(src, src, 0, 0, 0, 0.0, 0, True)
     in_place = output is None or _same_file(src, Path(output))
+    bak = src.with_name(src.name + ".bak")
     if not in_place:
         refuse_existing(output, force=force, flag="-o")  # type: ignore[arg-type]
+    elif backup:
+        refuse_existing(bak, force=force, flag="the backup")  # an earlier repair's: the original of that one
     dst = src if in_place else Path(output)  # type: ignore[arg-type]
-    with replace_when_done(dst) as tmp:
+    with replace_when_done(dst, overwrite=in_place or force, flag="-o") as tmp:
         report = _copy_complete_chunks(src, tmp, dst)
         if report.messages == 0 and not report.was_complete:
             raise UserError(f"{src}: no complete chunk in this MCAP file (cut before its first chunk was written); "
                             f"nothing to repair, {src} left as it was")
         if in_place and backup:
-            os.replace(src, src.with_name(src.name + ".bak"))
+            os.replace(src, bak)
     return report
 
 

@@ -39,7 +39,7 @@ from firmware_protocol import DEFAULT_WATCHDOG_MS
 from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
 from furuta_rt.io.mcap_log import run_metadata
-from furuta_rt.io.output import probe_writable
+from furuta_rt.io.output import probe_writable, write_text
 from furuta_rt.runtime.channel import Channel, Flag
 from furuta_rt.runtime.hardware import DeviceInfo, SerialHardware
 from furuta_rt.runtime.logger import LogSetup, logger_process
@@ -68,6 +68,7 @@ class RunOptions:
     cpu: int | None = None  # pin the control loop to this CPU (opt-in)
     gains: list[float] | None = None
     summary_json: str | None = None
+    force: bool = False  # an existing --log or --summary-json file may be replaced (the CLI refused them otherwise)
     foxglove_port: int | None = None  # serve the live view (from the logger process) on this port
     rig_source: str = "thesis"
     warnings: list[str] = field(default_factory=list)
@@ -257,7 +258,8 @@ def run_daemon(opts: RunOptions) -> int:
         # start-up in parallel: the logger process, hil-mock (a few seconds of imports each) and, here,
         # the controller's own imports; the device handshake comes last, right before the first tick
         if opts.log_path or opts.foxglove_port is not None:
-            children.spawn_logger(LogSetup(path=opts.log_path, rig=rig, foxglove_port=opts.foxglove_port))
+            children.spawn_logger(LogSetup(path=opts.log_path, rig=rig, foxglove_port=opts.foxglove_port,
+                                           replace=opts.force))
         if opts.mock_args is not None:
             pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="mock-start")
             mock_start = pool.submit(_start_mock, opts.mock_args)
@@ -363,7 +365,7 @@ def run_daemon(opts: RunOptions) -> int:
         data = summary_dict(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path, warnings=warnings,
                             injected=mock_injections(opts.mock_args),
                             log_ticks=log_ticks if not log_ok else result.ticks if opts.log_path else None, **comp)
-        Path(opts.summary_json).write_text(json.dumps(data, indent=1) + "\n")
+        write_text(opts.summary_json, json.dumps(data, indent=1) + "\n", overwrite=opts.force, flag="--summary-json")
     if result.end == "trip":
         return EXIT_TRIPPED
     if not log_ok:

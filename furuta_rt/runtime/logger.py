@@ -50,6 +50,7 @@ class LogSetup:
     # killed at any moment loses under 1 s of log (the reliability issue's bound), by construction.
     flush_s: float = 0.5
     foxglove_port: int | None = None  # serve the live view on this port (furuta_rt.runtime.live)
+    replace: bool = False  # an existing file at ``path`` may be replaced (run --force); else creating it fails
 
 
 class TickLog:
@@ -68,7 +69,7 @@ class TickLog:
         if run is not None:
             self.setup.run = run
             self.mode = run.get("mode", "none")
-        self.writer = LogWriter(self.setup.path, self.setup.rig, self.setup.run, device)
+        self.writer = LogWriter(self.setup.path, self.setup.rig, self.setup.run, device, exclusive=not self.setup.replace)
         for ev in self._early:
             self.writer.event(*ev)
         self._early.clear()
