@@ -23,6 +23,7 @@ from pathlib import Path
 
 from firmware_protocol.hostbuild import BuildError
 from furuta_rt.errors import UserError
+from furuta_rt.io.output import claim_outputs, write_text
 from hil_mock.config import MockConfig, build_config
 from hil_mock.device import VirtualDevice
 
@@ -65,6 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the pty (removed on exit)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds of wall time")
     p.add_argument("--stats-json", metavar="FILE", help="write the final statistics as JSON to FILE")
+    p.add_argument("--force", action="store_true", help="replace an existing --stats-json FILE (without it an "
+                   "existing file is refused, exit 2, before the device starts)")
     p.add_argument("--exit-with-fd", type=int, metavar="FD",
                    help="stop (as on SIGINT) when file descriptor FD, a pipe whose write end the launcher holds, "
                         "reaches end of file: the mock then ends with its launcher, even when that is SIGKILLed")
@@ -127,6 +130,7 @@ def _watch_launcher(fd: int, on_gone: Callable[[], None]) -> None:
 
 
 def serve(args: argparse.Namespace) -> int:
+    claim_outputs([("--stats-json", args.stats_json)], force=args.force)
     cfg = config_from_args(args)
     try:
         device = VirtualDevice(cfg)
@@ -167,7 +171,7 @@ def serve(args: argparse.Namespace) -> int:
     stats = device.stats
     print(stats.summary(), file=sys.stderr, flush=True)
     if args.stats_json:
-        Path(args.stats_json).write_text(json.dumps(stats.as_dict(), indent=2) + "\n")
+        write_text(args.stats_json, json.dumps(stats.as_dict(), indent=2) + "\n", overwrite=args.force, flag="--stats-json")
     return 0
 
 

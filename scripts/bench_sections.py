@@ -1214,6 +1214,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="scripts/bench", description=__doc__)
     ap.add_argument("--quick", action="store_true", help="shorter runs (< 3 min in all)")
     ap.add_argument("--json", metavar="OUT", help="write one JSON object with every figure")
+    ap.add_argument("--force", action="store_true", help="replace an existing --json OUT (refused before any run without it)")
     ap.add_argument("--only", metavar="A,B", help=f"sections to run: {', '.join(SECTIONS)}")
     args = ap.parse_args(argv)
     names = args.only.split(",") if args.only else list(SECTIONS)
@@ -1221,6 +1222,9 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         print(f"unknown section {unknown[0]!r}; known: {', '.join(SECTIONS)}", file=sys.stderr)
         return 2
+    from furuta_rt.io.output import claim_or_exit, write_text
+
+    claim_or_exit("scripts/bench", [("--json", args.json)], force=args.force)
     t_all = time.perf_counter()
     info = machine()
     print(f"scripts/bench{' --quick' if args.quick else ''} on {info['date']}: {info['cpus']} CPUs, load average "
@@ -1243,8 +1247,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{results['bench_seconds']:.0f} s in all)")
     print_table(results["table"])
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(results, fh, indent=2, default=_json_default)
+        write_text(args.json, json.dumps(results, indent=2, default=_json_default), overwrite=args.force, flag="--json")
     _ = statistics  # keep the import for sections that report medians
     return 0
 

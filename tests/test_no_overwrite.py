@@ -213,3 +213,39 @@ def test_repair_in_place_does_not_replace_an_earlier_backup(tmp_path: Path, inpu
     from furuta_rt.io.mcap_read import read_log
 
     assert read_log(torn).n_ticks == 1000
+
+
+# ------------------------------------------------------------------ the other tools that write a file the user names
+TOOLS = {  # argv (after the interpreter), the existing output (a file, or a directory holding one)
+    "hil_mock_stats": (["-m", "hil_mock", "--pty", "--duration", "1", "--stats-json", "old.json"], "old.json"),
+    "bench": (["-m", "scripts.bench_sections", "--only", "replay", "--json", "old.json"], "old.json"),
+    "bench_diagnose": (["scripts/bench_diagnose", "--quick", "--json", "old.json"], "old.json"),
+    "bench_independent": (["scripts/bench_independent", "--json", "old.json"], "old.json"),
+    "fit_steps": (["scripts/fit_steps", "--json", "old.json"], "old.json"),
+    "reproduce_thesis": (["-m", "furuta_rt.analysis.reproduction", "--quick", "--out", "figs"], "figs/fig9.png"),
+    "chaos_keep": (["scripts/chaos", "--only", "exits", "--keep", "figs"], "figs/fig9.png"),
+}
+
+
+@pytest.mark.parametrize("tool", list(TOOLS))
+def test_the_other_tools_refuse_an_existing_output_before_any_work(tmp_path: Path, tool: str) -> None:
+    """hil-mock --stats-json, the benchmarks' --json, fit_steps --json, reproduce_thesis --out DIR (another than the
+    repository's docs/figures) and chaos --keep DIR: exit 2, one line, the user's file as it was, nothing started."""
+    import sys
+
+    from test_reliability_harness import ROOT
+
+    argv, existing = TOOLS[tool]
+    target = tmp_path / existing
+    target.parent.mkdir(exist_ok=True)
+    target.write_bytes(MINE)
+    argv = [str(ROOT / a) if a.startswith("scripts/") else a for a in argv]
+    argv = [str(tmp_path / a) if a in ("old.json", "figs") else a for a in argv]
+    proc = subprocess.run([sys.executable, *argv], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert proc.returncode == 2 and len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr + proc.stdout
+    assert str(target if target.name == "old.json" else target.parent) in lines[0] and "error" in lines[0], lines[0]
+    assert proc.stdout.strip() == "", proc.stdout  # nothing ran
+    assert target.read_bytes() == MINE
+    written = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
+    assert written == (["figs", existing] if "/" in existing else [existing])  # nothing written beside it

@@ -275,17 +275,30 @@ def _describe(tr: Trajectory, theta_limit: float) -> str:
     return ", ".join(parts)
 
 
+DEFAULT_OUT = "docs/figures"
+"""The repository's own figures: regenerated in place (under version control, nothing of a user's is lost)."""
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="reproduce_thesis", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", default="docs/figures", help="output directory for the PNGs, table and JSON (default docs/figures)")
+    ap.add_argument("--out", default=DEFAULT_OUT, help=f"output directory for the PNGs, table and JSON (default {DEFAULT_OUT}, "
+                    "regenerated in place; another directory must be new or empty unless --force)")
+    ap.add_argument("--force", action="store_true", help="write into an --out directory that already holds files")
     ap.add_argument("--quick", action="store_true", help="short runs, no calibration (uses the stored Fc), no shooting")
     ap.add_argument("--config", default=None, help="rig TOML or shipped rig name (default thesis)")
     ap.add_argument("--sensitivity", action="store_true",
                     help="also vary the Coulomb compensator's knobs (level, ε, observer, noise): ~1 min more")
     args = ap.parse_args(argv)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        print(f"reproduce_thesis: error: --out {out} is a file; give a directory", file=sys.stderr)
+        return 2
+    if args.out != DEFAULT_OUT and out.is_dir() and any(out.iterdir()) and not args.force:
+        print(f"reproduce_thesis: error: --out {out} already holds files; refusing to write into it (give a new or "
+              "empty directory, or pass --force to replace the files of an earlier run)", file=sys.stderr)
+        return 2
     t_start = time.monotonic()
     rig = load_rig(args.config)
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     quick = args.quick
     duration, transient = (24.0, 6.0) if quick else (90.0, 15.0)

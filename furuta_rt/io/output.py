@@ -15,6 +15,7 @@ import contextlib
 import os
 import secrets
 import shutil
+import sys
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -73,6 +74,16 @@ def claim_outputs(outputs: Iterable[Named], *, force: bool, inputs: Iterable[str
         seen[key] = flag
         refuse_existing(p, force=force, flag=flag)
         probe_writable(p, f"{flag}")
+
+
+def claim_or_exit(prog: str, outputs: Iterable[Named], *, force: bool, inputs: Iterable[str | Path] = ()) -> None:
+    """:func:`claim_outputs` for a script or tool outside the ``furuta-rt`` CLI: a refusal is one line
+    ``prog: error: …`` on stderr and exit code 2."""
+    try:
+        claim_outputs(outputs, force=force, inputs=inputs)
+    except UserError as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 def _new_file_mode(existing: Path) -> int:
