@@ -37,19 +37,32 @@ def log_path(tmp_path_factory: pytest.TempPathFactory, rig: RigConfig) -> Path:
     return simulate_log(tmp_path_factory.mktemp("mcap") / "run.mcap", rig, 3.0, substep_hz=1000, flush_every=0.5)
 
 
-def independent_tick_count(data: bytes) -> int:
-    """Ticks mcap's own StreamReader yields from ``data`` before the bytes end."""
+def independent_tick_counts(data: bytes) -> tuple[int, int]:
+    """(/furuta/tick messages, /furuta/tick_batch records) mcap's own StreamReader yields from ``data`` before the
+    bytes end."""
     channels: dict[int, str] = {}
-    n = 0
+    n_json = n_batch = 0
     try:
         for rec in StreamReader(io.BytesIO(data)).records:
             if hasattr(rec, "topic"):
                 channels[rec.id] = rec.topic
             if isinstance(rec, Message) and channels.get(rec.channel_id) == ls.TICK_TOPIC:
-                n += 1
+                n_json += 1
+            if isinstance(rec, Message) and channels.get(rec.channel_id) == ls.TICK_BATCH_TOPIC:
+                n_batch += len(rec.data) // ls.TICK_BATCH_DTYPE.itemsize
     except (McapError, ValueError, EOFError, struct.error):  # the torn end, as the library reports it
         pass
-    return n
+    return n_json, n_batch
+
+
+def tick_chunks(path: Path) -> list[tuple[int, int]]:
+    """(start, end) byte offsets of the chunks holding /furuta/tick_batch messages, in file order (the summary's)."""
+    with path.open("rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    (batch_id,) = (cid for cid, ch in summary.channels.items() if ch.topic == ls.TICK_BATCH_TOPIC)
+    return sorted((c.chunk_start_offset, c.chunk_start_offset + c.chunk_length) for c in summary.chunk_indexes
+                  if batch_id in c.message_index_offsets)
 
 
 @pytest.mark.parametrize("name", ["thesis", "qube_servo2", "macstepien"])
@@ -84,9 +97,12 @@ def test_torn_log_read_up_to_last_complete_chunk(tmp_path: Path, log_path: Path)
         summary = make_reader(fh).get_summary()
     assert summary is not None
     chunk_ends = sorted(c.chunk_start_offset + c.chunk_length for c in summary.chunk_indexes)
+    batch_ends = [end for _, end in tick_chunks(log_path)]
+    assert len(batch_ends) == 6  # one batch per flush (0.5 s, 250 ticks), in a chunk of its own
     first_chunk = min(c.chunk_start_offset for c in summary.chunk_indexes)
     mid_chunk = (first_chunk + chunk_ends[0]) // 2
     cuts = sorted({8, 9, 60, first_chunk, mid_chunk, chunk_ends[0], chunk_ends[0] + 1, chunk_ends[2] - 7,
+                   *(e + d for e in batch_ends for d in (-1, 0, 1)),
                    *range(100, len(data), len(data) // 23), len(data) - 200, len(data) - 20})
     cut_path = tmp_path / "cut.mcap"
     for cut in cuts:
@@ -95,8 +111,9 @@ def test_torn_log_read_up_to_last_complete_chunk(tmp_path: Path, log_path: Path)
         n = log.n_ticks
         assert log.recovered
         assert np.array_equal(log.ticks["u"], full.ticks["u"][:n]) and np.array_equal(log.ticks["seq"], np.arange(n))
-        assert n == independent_tick_count(data[:cut]), cut
-        assert n == 500 * sum(1 for end in chunk_ends if end <= cut) // 2 or cut > chunk_ends[-1], cut
+        n_json, n_batch = independent_tick_counts(data[:cut])
+        assert n == n_batch >= n_json, cut  # every tick the JSON channel kept (Foxglove's view), and no more than whole batches
+        assert n == 250 * sum(1 for end in batch_ends if end <= cut), cut
         assert any("furuta-rt repair" in w and f"recovered {n} ticks" in w for w in log.warnings)
         if n:
             assert f"t = 0.000 … {full.ticks['t'][n - 1]:.3f} s" in log.warnings[0]
@@ -118,18 +135,19 @@ def test_recovered_span_reaches_the_last_flush(tmp_path: Path, rig: RigConfig) -
 
 def test_damaged_chunk_is_skipped_with_a_warning(tmp_path: Path, log_path: Path) -> None:
     data = bytearray(log_path.read_bytes())
-    chunks = []
+    start, end = tick_chunks(log_path)[1]
     with log_path.open("rb") as fh:
-        for rec in StreamReader(fh, emit_chunks=True).records:
-            if isinstance(rec, Chunk):
-                chunks.append(fh.tell() - len(rec.data))
-    start = chunks[1]
-    data[start + 100 : start + 140] = bytes(40)  # zero 40 bytes inside the second chunk's compressed data
+        fh.seek(start)
+        chunk = next(iter(StreamReader(fh, skip_magic=True, emit_chunks=True).records))
+    assert isinstance(chunk, Chunk)
+    at = end - len(chunk.data)  # the chunk's compressed records end the record
+    data[at + 100 : at + 140] = bytes(40)  # zero 40 bytes inside the second tick batch's compressed data
     bad = tmp_path / "damaged.mcap"
     bad.write_bytes(bytes(data))
     log = read_log(bad)
     assert any("damaged chunk" in w for w in log.warnings)
-    assert 0 < log.n_ticks < 1500 and not log.recovered
+    assert log.n_ticks == 1250 and not log.recovered  # that batch's 250 ticks are lost, the others read
+    assert np.array_equal(log.ticks["seq"], np.r_[0:250, 500:1500])
 
 
 @pytest.mark.parametrize(("content", "expected"), [
@@ -204,16 +222,46 @@ def test_repair_cli(tmp_path: Path, log_path: Path, capsys: pytest.CaptureFixtur
 
 
 def test_bad_tick_messages_are_skipped_with_a_warning(tmp_path: Path, rig: RigConfig) -> None:
-    from furuta_rt.io.mcap_log import LogWriter, run_metadata
+    """A log of JSON ticks only (as written before /furuta/tick_batch) with a damaged and an incomplete message."""
+    from furuta_rt.io.mcap_log import LogWriter, _dumps, run_metadata
 
     fields = {k: 0 for k in ls.TICK_FIELDS} | {"t": 0.0, "saturated": False, "reset": False, "state": "idle", "mode": "none"}
     path = tmp_path / "odd.mcap"
     with LogWriter(path, rig, run_metadata("none", [1, 2, 3, 4], 500)) as w:
-        w.tick(0, fields)
+        w._writer.add_message(w._tick, 0, _dumps(fields), 0)
         w._writer.add_message(w._tick, 1, b"{not json", 1)  # a damaged payload
-        w.tick(2, fields | {"seq": 2, "t": 0.004})
+        w._writer.add_message(w._tick, 2, _dumps(fields | {"seq": 2, "t": 0.004}), 2)
         w._writer.add_message(w._tick, 3, json.dumps({"seq": 3, "t": 0.006}).encode(), 3)  # fields missing
     log = read_log(path)
     assert log.ticks["seq"].tolist() == [0, 2, 3] and np.isnan(log.ticks["u"][2])
     assert any("1 message(s) on /furuta/tick are not JSON" in w for w in log.warnings)
     assert any("lack field(s)" in w and "theta" in w for w in log.warnings)
+
+
+def test_tick_batch_with_a_torn_record_or_an_unknown_layout(tmp_path: Path, rig: RigConfig) -> None:
+    """A /furuta/tick_batch message that is not whole records is skipped with a warning (the others read); a batch
+    channel whose schema describes another record layout is not used: the JSON ticks are read instead."""
+    from furuta_rt.io.mcap_log import LogWriter, run_metadata
+
+    fields = {k: 0 for k in ls.TICK_FIELDS} | {"t": 0.0, "saturated": False, "reset": False, "state": "balancing", "mode": "none"}
+    path = tmp_path / "torn_record.mcap"
+    with LogWriter(path, rig, run_metadata("none", [1, 2, 3, 4], 500)) as w:
+        for k in range(3):
+            w.tick(k, fields | {"seq": k, "t": 0.002 * k})
+        w.flush()
+        w._writer.add_message(w._batch_channel, 3, ls.pack_tick(3, fields | {"seq": 3})[:-1], 3)  # a record cut short
+        w.tick(4, fields | {"seq": 4, "t": 0.008})
+    log = read_log(path)
+    assert log.ticks["seq"].tolist() == [0, 1, 2, 4] and log.ticks["state"].tolist() == ["balancing"] * 4
+    assert np.isnan(log.timing["period_us"]).all() and (log.timing["overruns"] == -1).all()  # no timing was given
+    assert any(f"1 message(s) on {ls.TICK_BATCH_TOPIC} are not whole tick records" in w for w in log.warnings)
+
+    other = tmp_path / "other_layout.mcap"
+    with LogWriter(other, rig, run_metadata("none", [1, 2, 3, 4], 500)) as w:
+        sid = w._writer.register_schema("furuta_rt.TickBatch", ls.TICK_BATCH_ENCODING, b'{"record_size": 8, "fields": []}')
+        w._batch_channel = w._writer.register_channel(ls.TICK_BATCH_TOPIC, ls.TICK_BATCH_ENCODING, sid)
+        w.tick(0, fields)
+        w.tick(1, fields | {"seq": 1, "t": 0.002})
+    log = read_log(other)
+    assert log.ticks["seq"].tolist() == [0, 1]  # from /furuta/tick
+    assert any("record layout this version does not know" in w for w in log.warnings)

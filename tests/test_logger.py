@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import shutil
+import struct
 import time
 from pathlib import Path
 
@@ -59,10 +60,11 @@ def test_layout_foxglove_can_plot(tmp_path: Path, rig: RigConfig) -> None:
         summary = reader.get_summary()
         assert summary is not None
         topics = {ch.topic: ch for ch in summary.channels.values()}
-        assert set(topics) == {ls.TICK_TOPIC, ls.TIMING_TOPIC, ls.JOINT_STATES_TOPIC, ls.EVENTS_TOPIC}
-        for ch in topics.values():
+        assert set(topics) == {ls.TICK_TOPIC, ls.TIMING_TOPIC, ls.JOINT_STATES_TOPIC, ls.EVENTS_TOPIC, ls.TICK_BATCH_TOPIC}
+        for topic, ch in topics.items():  # Foxglove decodes every channel but the readers' packed tick batch
             schema = summary.schemas[ch.schema_id]
-            assert ch.message_encoding == "json" and schema.encoding == "jsonschema"
+            json_channel = ch.message_encoding == "json" and schema.encoding == "jsonschema"
+            assert json_channel == (topic != ls.TICK_BATCH_TOPIC)
         assert summary.schemas[topics[ls.JOINT_STATES_TOPIC].schema_id].name == "foxglove.JointStates"
         assert summary.schemas[topics[ls.EVENTS_TOPIC].schema_id].name == "foxglove.Log"
         counts = {topics_id: c for topics_id, c in summary.statistics.channel_message_counts.items()}
@@ -78,6 +80,21 @@ def test_layout_foxglove_can_plot(tmp_path: Path, rig: RigConfig) -> None:
         assert list(tick) == list(ls.TICK_FIELDS) and tick["state"] == "armed" and tick["reset"] is True
         joints = json.loads(next(m for _, c, m in reader.iter_messages(topics=[ls.JOINT_STATES_TOPIC])).data)
         assert [j["name"] for j in joints["joints"]] == ["theta", "phi"]
+        # the batch records carry exactly what the JSON tick and timing messages carry (decoded here with struct,
+        # by the layout in the log's own schema record)
+        layout = json.loads(summary.schemas[topics[ls.TICK_BATCH_TOPIC].schema_id].data)
+        codes = {"int64": "q", "float64": "d", "bool": "?", "uint8": "B"}
+        record = struct.Struct("<" + "".join(codes[f["type"]] for f in layout["fields"]))
+        names = [f["name"] for f in layout["fields"]]
+        batched = [dict(zip(names, r, strict=True)) for _, _, m in reader.iter_messages(topics=[ls.TICK_BATCH_TOPIC])
+                   for r in record.iter_unpack(m.data)]
+        ticks = [(m.log_time, json.loads(m.data)) for _, _, m in reader.iter_messages(topics=[ls.TICK_TOPIC])]
+        timings = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=[ls.TIMING_TOPIC])]
+        assert len(batched) == len(ticks) == len(timings) == n
+        for b, (log_time, tick), timing in zip(batched, ticks, timings, strict=True):
+            assert b["time_ns"] == log_time
+            assert {k: layout["enums"][k][b[k]] if k in layout["enums"] else b[k] for k in tick} == tick
+            assert {k: b[k] for k in timing} == timing
     log = read_log(path)
     assert not log.recovered and log.n_ticks == n and log.rig == rig
     messages = [e["message"] for e in log.events]

@@ -212,43 +212,70 @@ const lz4 = require("@foxglove/wasm-lz4");
 
 NODE_SCRIPT = r"""
 // Count messages per topic with @mcap/core's McapStreamReader (independent of the Python mcap package).
+// tick_records: the records in the furuta_rt.tick_batch messages (record_size from the log's schema record).
 """ + NODE_PRELUDE + r"""  const channels = new Map();
+  const schemas = new Map();
   const topics = {};
   const last = {};
+  let tick_records = 0;
   let error = null;
   reader.append(new Uint8Array(data.buffer, data.byteOffset, data.byteLength));
   try {
     for (let rec; (rec = reader.nextRecord()); ) {
-      if (rec.type === "Channel") channels.set(rec.id, rec.topic);
+      if (rec.type === "Schema") schemas.set(rec.id, rec);
+      else if (rec.type === "Channel") channels.set(rec.id, rec);
       else if (rec.type === "Message") {
-        const topic = channels.get(rec.channelId);
-        topics[topic] = (topics[topic] || 0) + 1;
-        last[topic] = rec.logTime.toString();  // ns as text: a JS number would round it
+        const ch = channels.get(rec.channelId);
+        topics[ch.topic] = (topics[ch.topic] || 0) + 1;
+        last[ch.topic] = rec.logTime.toString();  // ns as text: a JS number would round it
+        if (ch.messageEncoding === "furuta_rt.tick_batch") {
+          const size = JSON.parse(new TextDecoder().decode(schemas.get(ch.schemaId).data)).record_size;
+          tick_records += rec.data.byteLength / size;
+        }
       }
     }
   } catch (e) {
     error = String(e && e.message ? e.message : e);
   }
   console.log(JSON.stringify({ reader: "@mcap/core McapStreamReader", complete: reader.done(), error, topics,
-                               max_log_time: last, bytes_left: reader.bytesRemaining() }));
+                               tick_records, max_log_time: last, bytes_left: reader.bytesRemaining() }));
 })().catch((e) => { console.error(String(e)); process.exit(3); });
 """
 
 NODE_TIMES_SCRIPT = r"""
-// Every message's log_time, publish_time and JSON `timestamp` (ns as text), and the metadata, with @mcap/core.
+// Every message's log_time, publish_time and JSON `timestamp` (ns as text), and the metadata, with @mcap/core;
+// a furuta_rt.tick_batch message gives one row per packed record, decoded from the layout in its schema record
+// (the record's time_ns as the stamp).
 """ + NODE_PRELUDE + r"""  reader.append(new Uint8Array(data.buffer, data.byteOffset, data.byteLength));
   const channels = new Map();
+  const schemas = new Map();
   const metadata = {};
   const messages = [];
   const text = new TextDecoder();
+  const sizes = { int64: 8, float64: 8, bool: 1, uint8: 1 };
   for (let rec; (rec = reader.nextRecord()); ) {
-    if (rec.type === "Channel") channels.set(rec.id, rec.topic);
+    if (rec.type === "Schema") schemas.set(rec.id, rec);
+    else if (rec.type === "Channel") channels.set(rec.id, rec);
     else if (rec.type === "Metadata") metadata[rec.name] = Object.fromEntries(rec.metadata);
+    else if (rec.type === "Message" && channels.get(rec.channelId).messageEncoding === "furuta_rt.tick_batch") {
+      const ch = channels.get(rec.channelId);
+      const layout = JSON.parse(text.decode(schemas.get(ch.schemaId).data));
+      const at = {};
+      let size = 0;
+      for (const f of layout.fields) { at[f.name] = size; size += sizes[f.type]; }
+      if (size !== layout.record_size || rec.data.byteLength % size !== 0) throw new Error("bad tick_batch record");
+      const view = new DataView(rec.data.buffer, rec.data.byteOffset, rec.data.byteLength);
+      for (let o = 0; o < rec.data.byteLength; o += size) {
+        messages.push([ch.topic, rec.logTime.toString(), rec.publishTime.toString(),
+                       view.getBigInt64(o + at.time_ns, true).toString(), Number(view.getBigInt64(o + at.seq, true)),
+                       view.getFloat64(o + at.t, true), null]);
+      }
+    }
     else if (rec.type === "Message") {
       const body = JSON.parse(text.decode(rec.data));
       const ts = body.timestamp;
       const stamp = ts ? (BigInt(ts.sec) * 1000000000n + BigInt(ts.nsec)).toString() : null;
-      messages.push([channels.get(rec.channelId), rec.logTime.toString(), rec.publishTime.toString(), stamp,
+      messages.push([channels.get(rec.channelId).topic, rec.logTime.toString(), rec.publishTime.toString(), stamp,
                      body.seq === undefined ? null : body.seq, body.t === undefined ? null : body.t,
                      body.message === undefined ? null : body.message]);
     }
@@ -305,7 +332,9 @@ def independent_mcap_counts(path: str | Path) -> dict[str, Any]:
 
 def independent_mcap_times(path: str | Path) -> dict[str, Any]:
     """Every message's [topic, log_time, publish_time, JSON timestamp (ns), seq, t, message] (times as int) and
-    the metadata, read by @mcap/core under node (raises if it cannot run, as independent_mcap_counts)."""
+    the metadata, read by @mcap/core under node (raises if it cannot run, as independent_mcap_counts); a
+    /furuta/tick_batch message gives a row per tick record, its time_ns in place of the timestamp, decoded in
+    JavaScript from the record layout in the log's own schema record."""
     modules = ensure_node_mcap()
     if modules is None:
         raise RuntimeError(f"the independent MCAP reader ({INDEPENDENT_READER}) is unavailable (node/npm)")

@@ -67,8 +67,15 @@ def test_daemon_log_is_on_one_clock_that_agrees_with_the_device(tmp_path: Path) 
     armed = next(m for m in by_topic[ls.EVENTS_TOPIC] if "→ armed" in (m[6] or ""))
     seq = int(armed[6].rsplit("seq ", 1)[1].rstrip(")"))
     assert 0 <= armed[1] - tick_time[seq] < PERIOD_NS, (armed[1] - tick_time[seq]) / 1e3
-    # our reader sees the same map
-    assert read_log(tmp_path / "run.mcap").device_offset_ns == offset
+    # the packed tick batch (decoded by @mcap/core's side from the log's own schema record) holds the same ticks at
+    # the same times, and each batch message is stamped with its first tick's time
+    batched = [m for m in msgs if m[0] == ls.TICK_BATCH_TOPIC]
+    assert [(m[3], m[4], m[5]) for m in batched] == [(m[1], m[4], m[5]) for m in ticks]
+    assert all(m[1] == m[2] for m in batched) and {m[1] for m in batched} <= {m[3] for m in batched}
+    # our reader sees the same map and the same ticks
+    ours = read_log(tmp_path / "run.mcap")
+    assert ours.device_offset_ns == offset
+    assert ours.tick_log_time.tolist() == [m[1] for m in ticks] and ours.ticks["seq"].tolist() == [m[4] for m in ticks]
 
 
 def test_convert_keeps_a_csvs_absolute_times(tmp_path: Path) -> None:
@@ -105,7 +112,25 @@ def test_a_device_time_log_from_before_the_time_base_still_reads_and_replays(tmp
             w._writer.add_message(w._tick, 1_700_000_000_000_000_000 + dev, _dumps(fields), dev, k)
     old_log = read_log(old)
     assert old_log.device_offset_ns is None and not old_log.warnings
+    for name in ls.TICK_FIELDS:  # the JSON ticks read back exactly as the new log's packed batches
+        old_column, column = old_log.ticks[name], log.ticks[name]
+        assert old_column.dtype.kind == column.dtype.kind and np.array_equal(old_column, column), name
     result = replay_log(old_log)
     assert result.exact and result.n_mismatch == 0
     assert main(["replay", str(old)]) == 0
+
+
+def test_tick_batches_round_trip_through_the_independent_reader(tmp_path: Path) -> None:
+    """A log with /furuta/tick_batch (log_schema): @mcap/core plus the layout in the log's schema record give every
+    tick of /furuta/tick — same seq, t and time — and our reader gives them too; the log replays exactly."""
+    from furuta_rt.replay.simulate import simulate_log
+
+    path = simulate_log(tmp_path / "run.mcap", load_rig("thesis"), 1.5, substep_hz=1000, flush_every=0.4, rearm=(0.7,))
+    ind = independent_mcap_times(path)
+    json_ticks = [(m[1], m[4], m[5]) for m in ind["messages"] if m[0] == ls.TICK_TOPIC]
+    batched = [(m[3], m[4], m[5]) for m in ind["messages"] if m[0] == ls.TICK_BATCH_TOPIC]
+    assert len(json_ticks) == 750 and batched == json_ticks
+    log = read_log(path)
+    assert list(zip(log.tick_log_time.tolist(), log.ticks["seq"].tolist(), log.ticks["t"].tolist(), strict=True)) == batched
+    assert log.ticks["reset"].sum() == 2 and replay_log(log).exact
 

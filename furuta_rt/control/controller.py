@@ -170,23 +170,30 @@ class Controller:
             elif not self.swinging and su.fallen(m.theta):
                 self.swinging = True
                 su.reset()
-        innovation = m.phi - obs.phi
-        phi_dot_prior = obs.phi_dot
-        phi_dot = obs.correct(m.phi)
-        adaptive = self.compensator.adaptive
+        theta, phi = m.theta, m.phi
+        compensator = self.compensator
+        adaptive = compensator.adaptive
         if adaptive is not None and not self.swinging:  # prior φ̂̇ as regressor: independent of this tick's noise
-            adaptive.adapt(innovation * self._torque_per_innovation, phi_dot_prior, m.phi)
+            innovation = phi - obs.phi
+            phi_dot_prior = obs.phi_dot
+            phi_dot = obs.correct(phi)
+            adaptive.adapt(innovation * self._torque_per_innovation, phi_dot_prior, phi)
+        else:
+            phi_dot = obs.correct(phi)
         if self.swinging:
-            u_lin = su.command(m.theta, m.theta_dot, m.phi, phi_dot)  # type: ignore[union-attr]
+            u_lin = su.command(theta, m.theta_dot, phi, phi_dot)  # type: ignore[union-attr]
         else:
             ref, ref_dot = self.phi_ref, self.phi_dot_ref
-            u_lin = (self.l1 * m.theta + self.l2 * m.theta_dot + self.l3 * (m.phi - ref)
-                     + self.l4 * (phi_dot - ref_dot))
+            u_lin = self.l1 * theta + self.l2 * m.theta_dot + self.l3 * (phi - ref) + self.l4 * (phi_dot - ref_dot)
             if ref != 0.0 or ref_dot != 0.0:
                 w, h = self._ref_w, self._ref_h
                 ref_dot -= h * w * (w * ref + 2.0 * ref_dot)
                 self.phi_ref, self.phi_dot_ref = ref + h * ref_dot, ref_dot
-        u_comp = self.compensator(phi_dot, u_lin / self.command_per_torque) * self.command_per_torque
+        if compensator.law is None:  # mode "none": F̂ = 0
+            u_comp = 0.0
+        else:
+            cpt = self.command_per_torque
+            u_comp = compensator(phi_dot, u_lin / cpt) * cpt
         u = u_lin + u_comp
         lim = self.u_limit
         saturated = False
@@ -195,13 +202,13 @@ class Controller:
             saturated = True
         # The torque acting over the next period is the command issued `delay` ticks ago.
         if self._delay:
-            self._pending.append(u - u_comp)
-            applied = self._pending.popleft()
+            pending = self._pending
+            pending.append(u - u_comp)
+            applied = pending.popleft()
         else:
             applied = u - u_comp
-        obs.predict(m.theta if su is None else self._observer_theta(m.theta), applied)
-        return ControlOutput(u=u, u_lin=u_lin, u_comp=u_comp, phi_dot_hat=phi_dot, saturated=saturated,
-                             swinging=self.swinging)
+        obs.predict(theta if su is None else self._observer_theta(theta), applied)
+        return ControlOutput(u, u_lin, u_comp, phi_dot, saturated, self.swinging)
 
     def hold(self, m: Measurement) -> float:
         """Track the measurement without commanding (idle/tripped): keeps the observer converged.

@@ -1,6 +1,7 @@
 """The MCAP log layout shared by the daemon's writer, replay, convert and diagnose.
 
-Every message is JSON with a JSON Schema (Foxglove plots it without plugins).
+Every message but /furuta/tick_batch is JSON with a JSON Schema (Foxglove plots it without plugins);
+/furuta/tick_batch carries the same ticks as packed binary records for readers (replay, convert, diagnose).
 
 One time base: every message's ``log_time``, ``publish_time`` and schema ``timestamp`` are the same clock,
 the host's wall clock in ns since the Unix epoch, so Foxglove's log-time and header-time modes agree. A
@@ -18,6 +19,17 @@ Channels:
   /furuta/joint_states  foxglove.JointStates-shaped: θ and φ as two joints (position, velocity, effort)
   /furuta/events  foxglove.Log-shaped: supervisor transitions, faults, warnings
   /furuta/compensation  (``--comp adaptive`` runs) one per tick: the online Coulomb estimate fc_hat, N m
+  /furuta/tick_batch  the ticks again, many per message (up to BATCH_TICKS, ended at each flush): message and
+                  schema encoding "furuta_rt.tick_batch", the message is n packed little-endian records of
+                  TICK_BATCH_RECORD (no padding, ``TICK_BATCH_DTYPE.itemsize`` bytes each): the tick's time_ns
+                  (its log_time), every TICK_FIELDS field ("state", "mode": uint8 indexes into STATES, MODES)
+                  and every TIMING_FIELDS field but seq (NaN / -1 where a writer gave no timing). The schema
+                  data is JSON naming the fields and their types in order (tick_batch_schema()). log_time =
+                  publish_time = the first record's time_ns. A batch is written before the JSON messages of
+                  its ticks, so a log cut short keeps every tick its JSON channels kept. Written since
+                  furuta-rt logs carry it (2026-11-25); readers take ticks and timing from it when a log has
+                  it (a few numpy calls per chunk instead of a JSON decode per tick) and from /furuta/tick and
+                  /furuta/timing otherwise.
 Metadata records:
   "rig"     {"name": ..., "toml": <the rig config as TOML text>, "json": <RigConfig JSON>}
   "run"     {"mode": compensation mode, "gains": "[l1,l2,l3,l4]" JSON, "rate_hz": ..., "port": ..., "version": ...}
@@ -36,19 +48,30 @@ on are first calibrated (θ = wrap(θ − theta_zero), φ − phi_zero). The log
 
 from __future__ import annotations
 
+import json
+import struct
+from collections.abc import Mapping
 from typing import Any
+
+import numpy as np
 
 TICK_TOPIC = "/furuta/tick"
 TIMING_TOPIC = "/furuta/timing"
 JOINT_STATES_TOPIC = "/furuta/joint_states"
 EVENTS_TOPIC = "/furuta/events"
 COMPENSATION_TOPIC = "/furuta/compensation"
+TICK_BATCH_TOPIC = "/furuta/tick_batch"
+TICK_BATCH_ENCODING = "furuta_rt.tick_batch"
+BATCH_TICKS = 256  # most ticks per /furuta/tick_batch message
 
 RIG_METADATA = "rig"
 RUN_METADATA = "run"
 DEVICE_METADATA = "device"
 TIME_BASE_METADATA = "time_base"
 RIG_ATTACHMENT = "rig.toml"
+
+STATES = ["idle", "armed", "balancing", "tripped", "calibrating", "swinging_up"]  # supervisor states
+MODES = ["none", "coulomb", "stiction", "lugre", "adaptive"]  # compensation modes (config.CompMode)
 
 _NUM = {"type": "number"}
 _INT = {"type": "integer"}
@@ -68,7 +91,7 @@ TICK_FIELDS: dict[str, dict[str, Any]] = {
     "u_lin": _NUM,  # L·x part
     "u_comp": _NUM,  # friction compensation part
     "saturated": {"type": "boolean"},
-    "state": {"type": "string", "enum": ["idle", "armed", "balancing", "tripped", "calibrating", "swinging_up"]},
+    "state": {"type": "string", "enum": STATES},
     "reset": {"type": "boolean"},  # Controller.reset(phi) was called before this tick's update
     "mode": {"type": "string"},  # compensation mode
 }
@@ -86,6 +109,62 @@ TIMING_FIELDS: dict[str, dict[str, Any]] = {
     "crc_errors": _INT,  # cumulative, from the stream decoder
     "dropped_log_messages": _INT,  # cumulative, ticks the logger queue could not take
 }
+
+
+def _batch_type(name: str, spec: dict[str, Any]) -> str:
+    if name in ("state", "mode"):
+        return "uint8"
+    return {"number": "float64", "integer": "int64", "boolean": "bool"}[spec["type"]]
+
+
+TICK_BATCH_RECORD: tuple[tuple[str, str], ...] = (
+    ("time_ns", "int64"),
+    *((k, _batch_type(k, v)) for k, v in TICK_FIELDS.items()),
+    *((k, _batch_type(k, v)) for k, v in TIMING_FIELDS.items() if k != "seq"),
+)
+"""/furuta/tick_batch record: (field, type) in order; types int64 / float64 little-endian, bool and uint8 one byte."""
+_NUMPY_TYPES = {"int64": "<i8", "float64": "<f8", "bool": "?", "uint8": "u1"}
+TICK_BATCH_DTYPE = np.dtype([(name, _NUMPY_TYPES[kind]) for name, kind in TICK_BATCH_RECORD])  # packed, no padding
+
+
+_STRUCT_CODES = {"int64": "q", "float64": "d", "bool": "?", "uint8": "B"}
+TICK_BATCH_STRUCT = struct.Struct("<" + "".join(_STRUCT_CODES[kind] for _, kind in TICK_BATCH_RECORD))
+_TICK_KEYS = tuple(TICK_FIELDS)
+_STATE_POS, _MODE_POS = _TICK_KEYS.index("state"), _TICK_KEYS.index("mode")
+_STATE_INDEX = {name: i for i, name in enumerate(STATES)}
+_MODE_INDEX = {name: i for i, name in enumerate(MODES)}
+_TIMING_KEYS = tuple(k for k in TIMING_FIELDS if k != "seq")
+_TIMING_MISSING = tuple(float("nan") if TIMING_FIELDS[k]["type"] == "number" else -1 for k in _TIMING_KEYS)
+
+
+def pack_tick(time_ns: int, tick: Mapping[str, Any], timing: Mapping[str, Any] | None = None) -> bytes:
+    """One /furuta/tick_batch record: the tick's time, its /furuta/tick fields and its /furuta/timing fields."""
+    values = [tick[k] for k in _TICK_KEYS]
+    values[_STATE_POS] = _STATE_INDEX[values[_STATE_POS]]
+    values[_MODE_POS] = _MODE_INDEX[values[_MODE_POS]]
+    timed = _TIMING_MISSING if timing is None else [timing[k] for k in _TIMING_KEYS]
+    return TICK_BATCH_STRUCT.pack(time_ns, *values, *timed)
+
+
+def tick_batch_schema() -> dict[str, Any]:
+    """The schema data of /furuta/tick_batch (JSON): the record layout, for readers in any language."""
+    return {
+        "title": "furuta_rt.TickBatch",
+        "description": "n packed little-endian records, no padding, one per tick; state and mode index the enums",
+        "record_size": TICK_BATCH_DTYPE.itemsize,
+        "fields": [{"name": name, "type": kind} for name, kind in TICK_BATCH_RECORD],
+        "enums": {"state": STATES, "mode": MODES},
+    }
+
+
+def tick_batch_layout_matches(schema_data: bytes) -> bool:
+    """Whether a /furuta/tick_batch schema (its data) describes the record layout this version reads."""
+    try:
+        doc = json.loads(schema_data)
+    except ValueError:
+        return False
+    mine = tick_batch_schema()
+    return isinstance(doc, dict) and all(doc.get(k) == mine[k] for k in ("record_size", "fields", "enums"))
 
 
 def _object_schema(title: str, fields: dict[str, dict[str, Any]]) -> dict[str, Any]:

@@ -1,6 +1,7 @@
 """Writing the MCAP log layout of furuta_rt.io.log_schema.
 
-``LogWriter`` writes the channels, metadata and attachment of the layout; metadata go first, so a log
+``LogWriter`` writes the channels (a tick's JSON messages and its /furuta/tick_batch record), metadata and
+attachment of the layout; metadata go first, so a log
 cut short by a killed run still names its rig and run. ``write_recording_mcap`` turns a Recording (a
 CSV, a simulation) into such a log: what it does not know (raw counts, θ̇ when absent, φ̂̇) it
 computes and says so in the "run" metadata (``derived``).
@@ -60,6 +61,9 @@ def run_metadata(
 ABSOLUTE_AFTER_S = 315_532_800.0  # 1980-01-01 in Unix seconds: later times are taken as absolute
 
 
+_COMPENSATION = -1  # the /furuta/compensation channel before it is registered (LogWriter._held)
+
+
 def _ns(seconds: float) -> int:
     return max(0, round(seconds * 1e9))
 
@@ -102,6 +106,10 @@ class LogWriter:
         self._timing = channel(ls.TIMING_TOPIC, ls.TIMING_SCHEMA)
         self._joints = channel(ls.JOINT_STATES_TOPIC, ls.JOINT_STATES_SCHEMA)
         self._events = channel(ls.EVENTS_TOPIC, ls.LOG_SCHEMA)
+        self._batch_channel: int | None = None  # /furuta/tick_batch, registered with the first batch
+        self._batch: list[bytes] = []  # records of the ticks not yet written
+        self._batch_start = (0, 0)  # (time_ns, seq) of the batch's first tick
+        self._held: list[tuple[int, int, bytes, int]] = []  # their JSON messages: (channel, time, payload, seq)
         self._writer = w
         self._closed = False
 
@@ -113,37 +121,64 @@ class LogWriter:
         """The "time_base" metadata: how the messages' times relate to the device clock (log_schema)."""
         self._writer.add_metadata(ls.TIME_BASE_METADATA, dict(mapping))
 
-    def tick(self, time_ns: int, fields: Mapping[str, Any]) -> None:
-        """One /furuta/tick message (``fields``: every key of TICK_FIELDS) and its /furuta/joint_states, both
-        with log_time = publish_time = JointStates.timestamp = ``time_ns`` (the one time base)."""
-        w = self._writer
+    def tick(self, time_ns: int, fields: Mapping[str, Any], timing: Mapping[str, Any] | None = None) -> None:
+        """One tick (``fields``: every key of TICK_FIELDS; ``timing``: every key of TIMING_FIELDS): its
+        /furuta/tick, /furuta/joint_states and /furuta/timing messages and its /furuta/tick_batch record, all with
+        log_time = publish_time = JointStates.timestamp = ``time_ns`` (the one time base). Written in batches of
+        up to BATCH_TICKS ticks (and at every flush): the batch message first, then the ticks' JSON messages."""
         seq = int(fields["seq"]) & 0xFFFFFFFF
-        w.add_message(self._tick, time_ns, _dumps(fields), time_ns, seq)
-        joints = ls.joint_states_message(time_ns, fields)
-        w.add_message(self._joints, time_ns, _dumps(joints), time_ns, seq)
+        if not self._batch:
+            self._batch_start = (time_ns, seq)
+        self._batch.append(ls.pack_tick(time_ns, fields, timing))
+        held = self._held
+        held.append((self._tick, time_ns, _dumps(fields), seq))
+        held.append((self._joints, time_ns, _dumps(ls.joint_states_message(time_ns, fields)), seq))
+        if timing is not None:
+            held.append((self._timing, time_ns, _dumps(timing), seq))
+        if len(self._batch) >= ls.BATCH_TICKS:
+            self._write_batch()
 
-    def timing(self, log_time: int, fields: Mapping[str, Any]) -> None:
-        self._writer.add_message(self._timing, log_time, _dumps(fields), log_time, int(fields["seq"]) & 0xFFFFFFFF)
+    def _write_batch(self) -> None:
+        """The pending batch in a chunk of its own (readers that want only it skip the other chunks undecompressed),
+        then the JSON messages of its ticks in the next chunk(s)."""
+        w = self._writer
+        if self._batch:
+            w.flush()
+            if self._batch_channel is None:
+                sid = w.register_schema("furuta_rt.TickBatch", ls.TICK_BATCH_ENCODING, _dumps(ls.tick_batch_schema()))
+                self._batch_channel = w.register_channel(ls.TICK_BATCH_TOPIC, ls.TICK_BATCH_ENCODING, sid)
+            time_ns, seq = self._batch_start
+            w.add_message(self._batch_channel, time_ns, b"".join(self._batch), time_ns, seq)
+            w.flush()
+            self._batch.clear()
+        if self._held:
+            for channel, time_ns, payload, seq in self._held:
+                if channel == _COMPENSATION and self._compensation is None:  # registered beside its first message
+                    self._compensation = self._channel(ls.COMPENSATION_TOPIC, ls.COMPENSATION_SCHEMA)
+                w.add_message(self._compensation if channel == _COMPENSATION else channel, time_ns, payload, time_ns, seq)
+            w.flush()
+            self._held.clear()
 
     def compensation(self, time_ns: int, seq: int, fc_hat: float) -> None:
         """One /furuta/compensation message at the tick's time: the compensator's Coulomb level (the adaptive
-        estimate)."""
-        if self._compensation is None:
-            self._compensation = self._channel(ls.COMPENSATION_TOPIC, ls.COMPENSATION_SCHEMA)
+        estimate), written with the tick's batch."""
         seq &= 0xFFFFFFFF
-        self._writer.add_message(self._compensation, time_ns, _dumps({"seq": seq, "fc_hat": fc_hat}), time_ns, seq)
+        self._held.append((_COMPENSATION, time_ns, _dumps({"seq": seq, "fc_hat": fc_hat}), seq))
 
     def event(self, log_time: int, level: str, message: str, name: str = "furuta_rt") -> None:
+        self._write_batch()  # the ticks before it first: the file stays in time order
         body = ls.log_message(log_time, level, message, name)
         self._writer.add_message(self._events, log_time, _dumps(body), log_time)
 
     def flush(self) -> None:
         """End the chunk in progress and push it to the file (what a kill would otherwise lose)."""
+        self._write_batch()
         self._writer.flush()
 
     def close(self) -> None:
         if not self._closed:
             self._closed = True
+            self._write_batch()
             self._writer.finish()
             self._fh.close()
 
@@ -222,8 +257,7 @@ def write_recording_mcap(
                 "theta": th, "theta_dot": thd, "phi": ph, "phi_dot_hat": phd,
                 "u": uk, "u_lin": ul, "u_comp": uc, "saturated": bool(sat),
                 "state": "balancing", "reset": k == 0, "mode": mode,
-            })
-            w.timing(ns, {
+            }, {
                 "seq": k, "period_us": (tk - prev) * 1e6, "read_us": 0.0, "update_us": 0.0, "write_us": 0.0,
                 "latency_us": 0.0, "lateness_us": 0.0, "overruns": 0, "seq_gaps": 0, "crc_errors": 0,
                 "dropped_log_messages": 0,

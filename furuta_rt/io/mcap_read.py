@@ -2,9 +2,12 @@
 
 One code path reads complete logs and logs left by a killed run: the file is read front to back with
 mcap's StreamReader (chunks kept whole); a chunk is used only if it is complete and its CRC checks, and
-reading stops quietly at a torn end — what came before is kept, with a warning saying how much. Chunk
-contents are walked here (not by mcap's per-message objects) and only the wanted channels' payloads are
-sliced out and JSON-decoded in batches: that is what makes replaying a long log fast.
+reading stops quietly at a torn end — what came before is kept, with a warning saying how much. A chunk's
+MessageIndex records (which follow it) give the offsets of its messages: when they account for every byte of the
+chunk, only the wanted channels' messages are touched; otherwise (a torn index, a chunk holding channel or schema
+records) the chunk's records are walked here one by one (not by mcap's per-message objects). Ticks and timing come
+from /furuta/tick_batch (packed records, decoded with one numpy call) when the log has it, else from the JSON
+/furuta/tick and /furuta/timing payloads, decoded in batches. That is what makes replaying a long log fast.
 """
 
 from __future__ import annotations
@@ -37,6 +40,10 @@ _MESSAGE, _CHANNEL, _SCHEMA = 0x05, 0x04, 0x03
 _RECORD = struct.Struct("<BQ")  # opcode, length
 _MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, length, channel id, sequence, log_time, publish_time
 _HEAD = _MESSAGE_HEAD.size
+_INDEX_HEAD = struct.Struct("<HI")  # MessageIndex body: channel id, byte length of its (log_time, offset) pairs
+_LENGTH_BYTES = np.arange(1, 9)  # a record's u64 length, after its opcode
+_CHANNEL_BYTES = np.arange(9, 11)  # a message record's u16 channel id
+_SUPERSEDED = (ls.TICK_TOPIC, ls.TIMING_TOPIC)  # read from /furuta/tick_batch when a log has it
 # Errors mcap raises when the bytes end or are not MCAP (short reads surface as struct.error).
 _READ_ERRORS = (McapError, struct.error, ValueError, EOFError, MemoryError)
 
@@ -82,6 +89,12 @@ class _Columns:
         self.rows: list[dict[str, Any]] = []  # fields is None: keep decoded dicts (events)
         self.bad = 0
         self.missing: set[str] = set()
+
+    bad_what = "are not JSON objects"
+
+    def clear(self) -> None:
+        """Forget everything collected (the channel turned out to be superseded)."""
+        self.__init__(self.fields)  # type: ignore[misc]
 
     def _decode(self) -> tuple[list[Any], list[int]]:
         try:
@@ -151,16 +164,61 @@ def _to_array(col: Iterable[Any], spec: dict[str, Any]) -> np.ndarray:
         return np.array(["" if v is None else str(v) for v in values], dtype=str)
 
 
+class _TickBatches:
+    """Collects /furuta/tick_batch payloads (log_schema: whole packed records) and turns them into the tick and
+    timing columns with one numpy call."""
+
+    bad_what = "are not whole tick records"
+
+    def __init__(self) -> None:
+        self.pending: list[bytes] = []
+        self.times: list[int] = []
+        self.parts: list[bytes] = []
+        self.rows: list[dict[str, Any]] = []
+        self.bad = 0
+        self.missing: set[str] = set()
+
+    def flush(self) -> None:
+        size = ls.TICK_BATCH_DTYPE.itemsize
+        for payload in self.pending:
+            if len(payload) % size:
+                self.bad += 1
+            else:
+                self.parts.append(payload)
+        self.pending, self.times = [], []
+
+    def result(self) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray]]:
+        """(tick columns as TICK_FIELDS, the ticks' times in ns, timing columns as TIMING_FIELDS)."""
+        self.flush()
+        # columns are views into one writable buffer of the records (strided: no copy per column)
+        rec = np.frombuffer(bytearray(b"".join(self.parts)), dtype=ls.TICK_BATCH_DTYPE)
+        ticks: dict[str, np.ndarray] = {}
+        for name in ls.TICK_FIELDS:
+            col = rec[name]
+            if name in ("state", "mode"):
+                enum = ls.STATES if name == "state" else ls.MODES
+                ticks[name] = np.array([*enum, ""])[np.minimum(col, len(enum))]  # an index past the enum: ""
+            else:
+                ticks[name] = col
+        timing = {k: ticks["seq"].copy() if k == "seq" else rec[k] for k in ls.TIMING_FIELDS}
+        return ticks, rec["time_ns"], timing
+
+
 @dataclass
 class _Scan:
     size: int
-    want: dict[str, _Columns]
+    want: dict[str, _Columns | _TickBatches]
     channels: dict[int, Channel] = field(default_factory=dict)
     schemas: dict[int, Schema] = field(default_factory=dict)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     attachments: dict[str, bytes] = field(default_factory=dict)
-    by_id: dict[int, _Columns] = field(default_factory=dict)
+    by_id: dict[int, _Columns | _TickBatches] = field(default_factory=dict)
+    batched: bool = False  # ticks and timing come from /furuta/tick_batch
+    batch_problem: str | None = None  # a /furuta/tick_batch this version cannot read
+    pending_chunk: Chunk | None = None  # the last chunk, used once its MessageIndex records are read
+    pending_index: list[bytes] = field(default_factory=list)
     chunks: int = 0
+    skipped_chunks: int = 0  # complete chunks holding nothing wanted, not decompressed
     bad_chunks: int = 0
     unknown_channel_messages: int = 0
     footer: bool = False
@@ -170,9 +228,91 @@ class _Scan:
 
     def add_channel(self, ch: Channel) -> None:
         self.channels[ch.id] = ch
+        if ch.topic == ls.TICK_BATCH_TOPIC and ch.topic in self.want and not self.batched:
+            schema = self.schemas.get(ch.schema_id)
+            if ch.message_encoding != ls.TICK_BATCH_ENCODING or schema is None or not ls.tick_batch_layout_matches(schema.data):
+                self.batch_problem = (f"{ls.TICK_BATCH_TOPIC} has a record layout this version does not know; ticks read"
+                                      f" from {ls.TICK_TOPIC}")
+                return
+            self.batched = True
+            for cid in [cid for cid in self.by_id if self.channels[cid].topic in _SUPERSEDED]:
+                self.by_id.pop(cid).clear()  # type: ignore[union-attr]
         col = self.want.get(ch.topic)
-        if col is not None:
+        if col is not None and not (self.batched and ch.topic in _SUPERSEDED):
             self.by_id[ch.id] = col
+
+    def finish_chunk(self) -> None:
+        """Take the wanted messages out of the pending chunk: none, without decompressing it, when its message
+        indexes name only known channels none of which is wanted (a log with /furuta/tick_batch: the JSON chunks,
+        log_schema); by its message indexes when they account for all of it; else by walking its records."""
+        chunk, indexes = self.pending_chunk, self.pending_index
+        self.pending_chunk, self.pending_index = None, []
+        if chunk is None:
+            return
+        if self.batched and indexes:
+            ids = [_INDEX_HEAD.unpack_from(raw)[0] if len(raw) >= _INDEX_HEAD.size else -1 for raw in indexes]
+            if all(ch in self.channels and ch not in self.by_id for ch in ids):
+                self.chunks += 1
+                self.skipped_chunks += 1
+                return
+        try:
+            stream, length = get_chunk_data_stream(chunk, validate_crc=True)
+            data = stream.read(length)
+            if len(data) != chunk.uncompressed_size:
+                raise ValueError("size mismatch")
+            offsets = self._indexed(data, indexes)
+            if offsets is None:
+                self.walk_chunk(data)
+            else:
+                self._take(data, offsets)
+            for col in self.want.values():
+                col.flush()
+            self.chunks += 1
+        except Exception:
+            for col in self.want.values():
+                col.pending.clear()
+                col.times.clear()
+            self.bad_chunks += 1
+
+    def _indexed(self, data: bytes, indexes: list[bytes]) -> dict[int, np.ndarray] | None:
+        """Channel id → its message offsets in the chunk, if the chunk's MessageIndex records name known channels and
+        their messages tile the chunk exactly (so it holds nothing else: no channel or schema record); else None."""
+        per: dict[int, np.ndarray] = {}
+        for raw in indexes:
+            if len(raw) < _INDEX_HEAD.size:
+                return None
+            ch, nbytes = _INDEX_HEAD.unpack_from(raw)
+            if nbytes % 16 or _INDEX_HEAD.size + nbytes > len(raw) or ch not in self.channels or ch in per:
+                return None
+            per[ch] = np.frombuffer(raw, "<u8", nbytes // 8, _INDEX_HEAD.size)[1::2].astype(np.int64)
+        if not per:
+            return None
+        offsets = np.sort(np.concatenate(list(per.values())))
+        n = len(data)
+        if offsets[0] != 0 or offsets[-1] > n - _HEAD:
+            return None
+        buf = np.frombuffer(data, np.uint8)
+        lengths = buf[offsets[:, None] + _LENGTH_BYTES].view("<u8").ravel()
+        ends = offsets + 9 + lengths.astype(np.int64)
+        if np.any(buf[offsets] != _MESSAGE) or np.any(lengths < _HEAD - 9) or ends[-1] != n or np.any(ends[:-1] != offsets[1:]):
+            return None
+        for ch, offs in per.items():
+            if np.any(buf[offs[:, None] + _CHANNEL_BYTES].view("<u2").ravel() != ch):
+                return None
+        return per
+
+    def _take(self, data: bytes, per: dict[int, np.ndarray]) -> None:
+        """The wanted channels' payloads at the given message offsets (file order)."""
+        unpack_message = _MESSAGE_HEAD.unpack_from
+        for col in {id(c): c for c in self.by_id.values()}.values():
+            offs = [o for ch, o in per.items() if self.by_id.get(ch) is col]
+            if not offs:
+                continue
+            pending, times = col.pending, col.times
+            for off in np.sort(np.concatenate(offs)).tolist():
+                _, length, _, _, log_time, _ = unpack_message(data, off)
+                pending.append(data[off + _HEAD : off + 9 + length])
+                times.append(log_time)
 
     def walk_chunk(self, data: bytes) -> None:
         """Slice the wanted channels' payloads out of one chunk's records."""
@@ -199,22 +339,28 @@ class _Scan:
                         schema = Schema.read(stream)
                         self.schemas[schema.id] = schema
             pos += 9 + length
-        for col in self.want.values():
-            col.flush()
+
+
+class _RawMessageIndex(bytes):
+    """A MessageIndex record's body, unparsed (its entries are read with numpy)."""
 
 
 class _LogStreamReader(StreamReader):
-    """mcap's StreamReader, skipping MessageIndex records (the reader walks chunks itself; parsing
-    their entries one by one would cost as much as reading the messages)."""
+    """mcap's StreamReader, not parsing MessageIndex records (their entries one by one would cost as much as
+    reading the messages): skipped, or with ``keep_message_index`` returned whole as _RawMessageIndex."""
+
+    def __init__(self, *args: Any, keep_message_index: bool = False, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._keep_message_index = keep_message_index
 
     def _read_record(self, opcode: int, length: int) -> Any:
         if opcode == Opcode.MESSAGE_INDEX:
-            self._stream.read(length)
-            return None
+            body = self._stream.read(length)
+            return _RawMessageIndex(body) if self._keep_message_index else None
         return super()._read_record(opcode, length)
 
 
-def _scan(path: Path, want: dict[str, _Columns], progress: Callable[[int, int], None] | None = None) -> _Scan:
+def _scan(path: Path, want: dict[str, _Columns | _TickBatches], progress: Callable[[int, int], None] | None = None) -> _Scan:
     try:
         size = path.stat().st_size
         fh = path.open("rb")
@@ -229,7 +375,7 @@ def _scan(path: Path, want: dict[str, _Columns], progress: Callable[[int, int], 
             what = "is empty" if not head else "is not an MCAP file (no MCAP magic at the start)"
             raise UserError(f"{path} {what}; give a log written by furuta-rt (or convert a CSV with `furuta-rt convert`)")
         fh.seek(0)
-        records = _LogStreamReader(fh, emit_chunks=True, record_size_limit=max(size, 1)).records
+        records = _LogStreamReader(fh, emit_chunks=True, record_size_limit=max(size, 1), keep_message_index=True).records
         was_enabled = gc.isenabled()
         gc.disable()  # decoding makes many small dicts; the cyclic collector only slows it down
         try:
@@ -242,10 +388,15 @@ def _scan(path: Path, want: dict[str, _Columns], progress: Callable[[int, int], 
                     if not scan.footer:
                         scan.problem = f"{type(err).__name__} {err}".strip()
                     break
-                _use_record(scan, rec, path)
+                if isinstance(rec, _RawMessageIndex):
+                    scan.pending_index.append(rec)
+                else:
+                    scan.finish_chunk()
+                    _use_record(scan, rec, path)
                 scan.good_end = fh.tell()
                 if progress is not None and isinstance(rec, Chunk):
                     progress(scan.good_end, size)
+            scan.finish_chunk()
         finally:
             if was_enabled:
                 gc.enable()
@@ -254,18 +405,7 @@ def _scan(path: Path, want: dict[str, _Columns], progress: Callable[[int, int], 
 
 def _use_record(scan: _Scan, rec: Any, path: Path) -> None:
     if isinstance(rec, Chunk):
-        try:
-            stream, length = get_chunk_data_stream(rec, validate_crc=True)
-            data = stream.read(length)
-            if len(data) != rec.uncompressed_size:
-                raise ValueError("size mismatch")
-            scan.walk_chunk(data)
-            scan.chunks += 1
-        except Exception:
-            for col in scan.want.values():
-                col.pending.clear()
-                col.times.clear()
-            scan.bad_chunks += 1
+        scan.pending_chunk = rec  # used when its message indexes have been read (finish_chunk)
     elif isinstance(rec, Channel):
         scan.add_channel(rec)
     elif isinstance(rec, Schema):
@@ -295,6 +435,7 @@ class LogData:
     run: dict[str, Any]  # the "run" metadata, with gains as a list and rate_hz as a float
     recovered: bool  # the file was not closed (no summary): read up to its last complete chunk
     warnings: list[str] = field(default_factory=list)
+    tick_batches: bool = False  # ticks and timing were read from /furuta/tick_batch (else the JSON channels)
 
     @property
     def n_ticks(self) -> int:
@@ -394,15 +535,25 @@ def read_log(
     """Read a log. Never raises on a torn or damaged log (the warnings say what was recovered); a file
     that is not MCAP at all, or missing, is a UserError. ``progress(bytes_read, file_size)`` per chunk."""
     p = Path(path)
-    want = {ls.TICK_TOPIC: _Columns(ls.TICK_FIELDS)}
+    batches = _TickBatches()
+    json_ticks = _Columns(ls.TICK_FIELDS)
+    json_timing = _Columns(ls.TIMING_FIELDS)
+    want: dict[str, _Columns | _TickBatches] = {ls.TICK_BATCH_TOPIC: batches, ls.TICK_TOPIC: json_ticks}
     if timing:
-        want[ls.TIMING_TOPIC] = _Columns(ls.TIMING_FIELDS)
+        want[ls.TIMING_TOPIC] = json_timing
     if events:
         want[ls.EVENTS_TOPIC] = _Columns(None)
     scan = _scan(p, want, progress)
     warnings: list[str] = []
-    ticks, tick_times = want[ls.TICK_TOPIC].result()
-    timing_cols = want[ls.TIMING_TOPIC].result()[0] if timing else {}
+    if scan.batched:
+        ticks, tick_times, timing_cols = batches.result()
+    else:
+        ticks, tick_times = json_ticks.result()
+        timing_cols = json_timing.result()[0]
+        if scan.batch_problem:
+            warnings.append(f"{p}: {scan.batch_problem}")
+    if not timing:
+        timing_cols = {}
     recovered = not scan.footer
     if recovered:
         warnings.append(_recovery_warning(scan, p, ticks))
@@ -412,7 +563,7 @@ def read_log(
         warnings.append(f"{p}: {scan.bad_chunks} damaged chunk(s) skipped (CRC or decompression failed)")
     for topic, col in want.items():
         if col.bad:
-            warnings.append(f"{p}: {col.bad} message(s) on {topic} are not JSON objects; skipped")
+            warnings.append(f"{p}: {col.bad} message(s) on {topic} {col.bad_what}; skipped")
         if col.missing:
             warnings.append(f"{p}: messages on {topic} lack field(s) {', '.join(sorted(col.missing))}")
     if scan.unknown_channel_messages:
@@ -425,6 +576,7 @@ def read_log(
         path=p, ticks=ticks, tick_log_time=tick_times, timing=timing_cols,
         events=want[ls.EVENTS_TOPIC].rows if events else [], metadata=scan.metadata,
         attachments=scan.attachments, rig=rig, run=run, recovered=recovered, warnings=warnings,
+        tick_batches=scan.batched,
     )
 
 

@@ -10,8 +10,9 @@ would have commanded on the same data (the plant did not see it: no feedback thr
 
 from __future__ import annotations
 
+import itertools
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,6 +78,20 @@ def apply_startup_calibration(log: LogData, active: np.ndarray, theta: list[floa
         theta[k], phi[k] = cal.apply(theta[k], phi[k])
 
 
+_PROGRESS_TICKS = 4096  # progress is reported at least this often (ticks)
+
+
+def _segments(drives: np.ndarray, reset: np.ndarray, most: int) -> Iterator[tuple[int, int, bool]]:
+    """(first, end, the controller drives) of the runs of ticks replayed alike: a run ends where ``drives`` changes,
+    before a reset (so a reset is always a run's first tick) and at every multiple of ``most`` ticks."""
+    n = len(drives)
+    cuts = np.union1d(np.flatnonzero(drives[1:] != drives[:-1]) + 1, np.flatnonzero(reset))
+    cuts = np.union1d(cuts, np.arange(most, n, most))
+    bounds = [0, *(int(c) for c in cuts if 0 < c < n), n]
+    for a, b in itertools.pairwise(bounds):
+        yield a, b, bool(drives[a])
+
+
 def replay_log(
     log: LogData,
     *,
@@ -103,35 +118,43 @@ def replay_log(
     t_l, th_l, thd_l, ph_l = (tk[k].tolist() for k in ("t", "theta", "theta_dot", "phi"))
     balancing = (tk["state"] == "balancing") | (tk["state"] == "swinging_up")  # the controller drove the actuator
     apply_startup_calibration(log, balancing, th_l, ph_l)
-    bal_l, reset_l = balancing.tolist(), tk["reset"].tolist()
-    u = [0.0] * n
-    u_lin = [0.0] * n
-    u_comp = [0.0] * n
-    phd = [0.0] * n
-    sat = [False] * n
+    reset_l = tk["reset"].tolist()
+    # the outputs of the ticks the controller drove, in order, and φ̂̇ of the others (held)
+    u: list[float] = []
+    u_lin: list[float] = []
+    u_comp: list[float] = []
+    phd: list[float] = []
+    sat: list[bool] = []
+    held: list[float] = []
     update, hold, reset = ctrl.update, ctrl.hold, ctrl.reset
-    step = 4096
     start = time.perf_counter()
-    for k0 in range(0, n, step):
-        for k in range(k0, min(n, k0 + step)):
-            m = Measurement(t_l[k], th_l[k], thd_l[k], ph_l[k])
-            if reset_l[k]:
-                reset(m.phi)
-            if bal_l[k]:
-                out = update(m)
-                u[k], u_lin[k], u_comp[k], phd[k], sat[k] = out.u, out.u_lin, out.u_comp, out.phi_dot_hat, out.saturated
-            else:
-                phd[k] = hold(m)
+    for a, b, drives in _segments(balancing, tk["reset"], _PROGRESS_TICKS):
+        if reset_l[a]:
+            reset(ph_l[a])
+        ticks = zip(t_l[a:b], th_l[a:b], thd_l[a:b], ph_l[a:b], strict=True)
+        if drives:
+            for t, th, thd, ph in ticks:
+                out = update(Measurement(t, th, thd, ph))
+                u.append(out.u)
+                u_lin.append(out.u_lin)
+                u_comp.append(out.u_comp)
+                phd.append(out.phi_dot_hat)
+                sat.append(out.saturated)
+        else:
+            held += [hold(Measurement(t, th, thd, ph)) for t, th, thd, ph in ticks]
         if progress is not None:
-            progress(min(n, k0 + step), n)
+            progress(b, n)
     wall = time.perf_counter() - start
-    u_arr = np.array(u)
-    phd_arr = np.array(phd)
+    u_arr, u_lin_arr, u_comp_arr, phd_arr = (np.zeros(n) for _ in range(4))
+    sat_arr = np.zeros(n, dtype=bool)
+    for arr, values in ((u_arr, u), (u_lin_arr, u_lin), (u_comp_arr, u_comp), (phd_arr, phd), (sat_arr, sat)):
+        arr[balancing] = values
+    phd_arr[~balancing] = held
     logged = tk["u"]
     diff = (u_arr != logged) & balancing
     return ReplayResult(
-        t=tk["t"], u=u_arr, u_lin=np.array(u_lin), u_comp=np.array(u_comp), phi_dot_hat=phd_arr,
-        saturated=np.array(sat), balancing=balancing, u_logged=logged, mode=str(the_mode),
+        t=tk["t"], u=u_arr, u_lin=u_lin_arr, u_comp=u_comp_arr, phi_dot_hat=phd_arr,
+        saturated=sat_arr, balancing=balancing, u_logged=logged, mode=str(the_mode),
         gains=ctrl.gains, same_config=same, converted=log.converted, n_mismatch=int(diff.sum()),
         n_phi_dot_mismatch=int(np.sum(phd_arr != tk["phi_dot_hat"])),
         max_abs_du=float(np.max(np.abs(u_arr - logged)[balancing], initial=0.0)), wall_seconds=wall,

@@ -85,8 +85,7 @@ def simulate_log(
                 "phi_count": s.phi_count, "status": int(status), "theta": th, "theta_dot": thd, "phi": ph,
                 "phi_dot_hat": phd, "u": u, "u_lin": u_lin, "u_comp": u_comp, "saturated": sat,
                 "state": state, "reset": reset, "mode": mode,
-            })
-            w.timing(ns, {
+            }, {
                 "seq": k, "period_us": 1e6 / rate, "read_us": 0.0, "update_us": 0.0, "write_us": 0.0,
                 "latency_us": 0.0, "lateness_us": 0.0, "overruns": 0, "seq_gaps": 0, "crc_errors": 0,
                 "dropped_log_messages": 0,

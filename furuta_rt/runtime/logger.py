@@ -3,7 +3,7 @@
 view runs in the control process (with ``--foxglove`` and no ``--log`` it only serves).
 
 The file is written by furuta_rt.io.mcap_log.LogWriter (exactly the layout of furuta_rt.io.log_schema:
-/furuta/tick, /furuta/timing, /furuta/joint_states, /furuta/events; metadata "rig", "run", "device";
+/furuta/tick, /furuta/timing, /furuta/joint_states, /furuta/events, /furuta/tick_batch; metadata "rig", "run", "device";
 the attachment "rig.toml"). This process turns the loop's tuples into those messages and flushes the
 chunk in progress about every second, so a killed run leaves a file readable up to its last second.
 JSON encoding and zstd compression happen here, never in the control process (their GIL time would
@@ -87,8 +87,7 @@ class TickLog:
         offset = self.device_offset_ns
         for rec in batch:
             ns = rec[_DEV] + offset
-            w.tick(ns, tick_fields(rec, mode))
-            w.timing(ns, timing_fields(rec))
+            w.tick(ns, tick_fields(rec, mode), timing_fields(rec))
             if mode == "adaptive":
                 w.compensation(ns, rec[_SEQ], rec[_FC])
         self.ticks += len(batch)
