@@ -249,3 +249,20 @@ def test_the_other_tools_refuse_an_existing_output_before_any_work(tmp_path: Pat
     assert target.read_bytes() == MINE
     written = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
     assert written == (["figs", existing] if "/" in existing else [existing])  # nothing written beside it
+
+
+def test_a_link_keeps_pointing_at_the_replaced_file_and_a_device_is_written_into(tmp_path: Path) -> None:
+    real = tmp_path / "real.csv"
+    real.write_bytes(MINE)
+    link = tmp_path / "link.csv"
+    link.symlink_to(real)
+    with pytest.raises(UserError, match="already exists"):
+        claim_outputs([("--csv", link)], force=False)
+    with replace_when_done(link, overwrite=True, flag="--csv") as tmp:
+        tmp.write_text("new\n")
+    assert link.is_symlink() and real.read_text() == "new\n"
+    claim_outputs([("--csv", "/dev/null")], force=False)  # nothing there to lose: not refused, not replaced
+    with replace_when_done("/dev/null", overwrite=False, flag="--csv") as tmp:
+        assert tmp == Path("/dev/null")
+        tmp.write_text("discarded\n")
+    assert Path("/dev/null").is_char_device()

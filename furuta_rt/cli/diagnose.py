@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     from furuta_rt.diagnose.report import OUTPUTS, check_directory, text, write_report
 
     # every output claimed before the diagnosis: a user's files are never overwritten, and a refusal comes first
-    claim_outputs([("--json", args.json)], force=args.force, inputs=[args.recording])
+    claim_outputs([("--json", None if args.json == "-" else args.json)], force=args.force, inputs=[args.recording])
     if args.report:
         check_directory(Path(args.report))
         claim_directory("--report", args.report, OUTPUTS, force=args.force)

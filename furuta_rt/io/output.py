@@ -30,13 +30,19 @@ def refusal(flag: str, path: str | Path) -> UserError:
     return UserError(f"{flag} {path} already exists; refusing to overwrite it (pass --force to replace it)")
 
 
+def _special(p: Path) -> bool:
+    """An existing name that is neither a regular file nor a directory (a device such as /dev/null or
+    /dev/stdout, a FIFO): written into as it is, never refused nor replaced — it holds no file to lose."""
+    return p.exists() and not p.is_file() and not p.is_dir()
+
+
 def refuse_existing(path: str | Path, *, force: bool, flag: str) -> None:
     """UserError if ``path`` is a directory, or an existing file and not ``force`` (``flag``: the option
     that named it, e.g. ``--log``)."""
     p = Path(path)
     if p.is_dir():
         raise UserError(f"{flag} {p} is a directory; give a file name")
-    if p.exists() and not force:
+    if p.exists() and not force and not _special(p):
         raise refusal(flag, p)
 
 
@@ -59,17 +65,17 @@ def probe_writable(path: str | Path, what: str) -> None:
 def claim_outputs(outputs: Iterable[Named], *, force: bool, inputs: Iterable[str | Path] = ()) -> None:
     """Check every output a command will write, before it does any work: not a directory, not one of
     ``inputs``, not named twice, not an existing file unless ``force``, and writable (nothing is created
-    or truncated here). Options that were not given (path None, or '-' for stdout) are skipped."""
+    or truncated here). Options that were not given (path None) are skipped."""
     seen: dict[Path, str] = {}
     sources = {Path(p).resolve() for p in inputs}
     for flag, path in outputs:
-        if path is None or str(path) == "-":
+        if path is None:
             continue
         p = Path(path)
         key = p.resolve()
         if key in sources:
             raise UserError(f"{flag} {p} is the input; give another name")
-        if key in seen:
+        if key in seen and not _special(p):
             raise UserError(f"{flag} {p} is also given as {seen[key]}; give each output its own name")
         seen[key] = flag
         refuse_existing(p, force=force, flag=flag)
@@ -118,8 +124,15 @@ def _move_into_place(tmp: Path, target: Path, *, overwrite: bool, flag: str) -> 
 def replace_when_done(path: str | Path, *, overwrite: bool = True, flag: str = "output") -> Iterator[Path]:
     """A temporary path next to ``path`` (same extension, so a writer that goes by it picks the format)
     for the block to write; moved onto ``path`` when the block ends normally, removed when it raises
-    (``path`` untouched then). Without ``overwrite`` an existing ``path`` is refused (named by ``flag``)."""
+    (``path`` untouched then). Without ``overwrite`` an existing ``path`` is refused (named by ``flag``).
+    A symbolic link keeps pointing where it did: the file it names is the one replaced; a device or FIFO
+    (/dev/null, /dev/stdout) is written directly."""
     p = Path(path)
+    if p.is_symlink():
+        p = p.resolve()
+    if _special(p):
+        yield p
+        return
     mode = _new_file_mode(p)
     tmp = p.with_name(f".{p.stem}.{secrets.token_hex(4)}.partial{p.suffix}")
     try:
