@@ -186,7 +186,8 @@ def directory_when_done(directory: str | Path, names: Iterable[str], *, overwrit
     is left as it was. Without ``overwrite`` a file of ``names`` already in ``directory`` is refused."""
     d = Path(directory)
     ours = tuple(names)
-    tmp = d.with_name(f".{d.name}.{secrets.token_hex(4)}.partial")
+    whole = Path(os.path.abspath(d))  # '.' and '..' have no name to put beside
+    tmp = whole.with_name(f".{whole.name}.{secrets.token_hex(4)}.partial")
     try:
         tmp.parent.mkdir(parents=True, exist_ok=True)
         tmp.mkdir()
