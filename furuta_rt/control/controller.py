@@ -90,6 +90,7 @@ class Controller:
         self.l1, self.l2, self.l3, self.l4 = (float(v) for v in gains)
         self.observer = observer
         self.compensator = compensator
+        self._no_compensation = compensator.law is None
         self.u_limit = u_limit
         self._pending: deque[float] = deque([0.0] * command_delay_ticks)
         self._delay = command_delay_ticks
@@ -189,7 +190,7 @@ class Controller:
                 w, h = self._ref_w, self._ref_h
                 ref_dot -= h * w * (w * ref + 2.0 * ref_dot)
                 self.phi_ref, self.phi_dot_ref = ref + h * ref_dot, ref_dot
-        if compensator.law is None:  # mode "none": F̂ = 0
+        if self._no_compensation:  # mode "none": F̂ = 0
             u_comp = 0.0
         else:
             cpt = self.command_per_torque

@@ -1,19 +1,24 @@
 """Reading furuta-rt MCAP logs (layout: furuta_rt.io.log_schema) into numpy columns.
 
-One code path reads complete logs and logs left by a killed run: the file is read front to back with
-mcap's StreamReader (chunks kept whole); a chunk is used only if it is complete and its CRC checks, and
-reading stops quietly at a torn end — what came before is kept, with a warning saying how much. A chunk's
-MessageIndex records (which follow it) give the offsets of its messages: when they account for every byte of the
-chunk, only the wanted channels' messages are touched; otherwise (a torn index, a chunk holding channel or schema
-records) the chunk's records are walked here one by one (not by mcap's per-message objects). Ticks and timing come
-from /furuta/tick_batch (packed records, decoded with one numpy call) when the log has it, else from the JSON
-/furuta/tick and /furuta/timing payloads, decoded in batches. That is what makes replaying a long log fast.
+One code path reads complete logs and logs left by a killed run: the file's records are read front to back
+(memory-mapped; each record's opcode and length here, mcap's record classes for channels, schemas, metadata
+and attachments); a chunk is used only if it is complete and its CRC checks (mcap's decompression), and
+reading stops quietly at a torn end — what came before is kept, with a warning saying how much.
+
+A chunk's MessageIndex records (which follow it) name its channels: a chunk with none that is wanted is not
+even decompressed (in a log with /furuta/tick_batch: the JSON chunks). They also give its messages' offsets:
+when those account for every byte of the chunk, only the wanted channels' messages are touched; otherwise (a
+torn index, a chunk holding channel or schema records) the chunk's records are walked here one by one (not by
+mcap's per-message objects). Ticks and timing come from /furuta/tick_batch (packed records, decoded with one
+numpy call) when the log has it, else from the JSON /furuta/tick and /furuta/timing payloads, decoded in
+batches. That is what makes replaying a long log fast.
 """
 
 from __future__ import annotations
 
 import gc
 import json
+import mmap
 import struct
 import tomllib
 from collections.abc import Callable, Iterable
@@ -40,6 +45,8 @@ _MESSAGE, _CHANNEL, _SCHEMA = 0x05, 0x04, 0x03
 _RECORD = struct.Struct("<BQ")  # opcode, length
 _MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, length, channel id, sequence, log_time, publish_time
 _HEAD = _MESSAGE_HEAD.size
+_MESSAGE_START = struct.Struct("<BQH")  # opcode, length, channel id
+_FEW_MESSAGES = 32  # a chunk with at most this many messages is checked in plain Python
 _INDEX_HEAD = struct.Struct("<HI")  # MessageIndex body: channel id, byte length of its (log_time, offset) pairs
 _LENGTH_BYTES = np.arange(1, 9)  # a record's u64 length, after its opcode
 _CHANNEL_BYTES = np.arange(9, 11)  # a message record's u16 channel id
@@ -191,7 +198,7 @@ class _TickBatches:
         """(tick columns as TICK_FIELDS, the ticks' times in ns, timing columns as TIMING_FIELDS)."""
         self.flush()
         # columns are views into one writable buffer of the records (strided: no copy per column)
-        rec = np.frombuffer(bytearray(b"".join(self.parts)), dtype=ls.TICK_BATCH_DTYPE)
+        rec = np.frombuffer(bytearray().join(self.parts), dtype=ls.TICK_BATCH_DTYPE)
         ticks: dict[str, np.ndarray] = {}
         for name in ls.TICK_FIELDS:
             col = rec[name]
@@ -215,7 +222,8 @@ class _Scan:
     by_id: dict[int, _Columns | _TickBatches] = field(default_factory=dict)
     batched: bool = False  # ticks and timing come from /furuta/tick_batch
     batch_problem: str | None = None  # a /furuta/tick_batch this version cannot read
-    pending_chunk: Chunk | None = None  # the last chunk, used once its MessageIndex records are read
+    pending_chunk: _ChunkAt | None = None  # the last chunk, used once its MessageIndex records are read
+    source: Any = None  # the file's bytes (memory-mapped) while it is read
     pending_index: list[bytes] = field(default_factory=list)
     chunks: int = 0
     skipped_chunks: int = 0  # complete chunks holding nothing wanted, not decompressed
@@ -245,9 +253,9 @@ class _Scan:
         """Take the wanted messages out of the pending chunk: none, without decompressing it, when its message
         indexes name only known channels none of which is wanted (a log with /furuta/tick_batch: the JSON chunks,
         log_schema); by its message indexes when they account for all of it; else by walking its records."""
-        chunk, indexes = self.pending_chunk, self.pending_index
+        found, indexes = self.pending_chunk, self.pending_index
         self.pending_chunk, self.pending_index = None, []
-        if chunk is None:
+        if found is None:
             return
         if self.batched and indexes:
             ids = [_INDEX_HEAD.unpack_from(raw)[0] if len(raw) >= _INDEX_HEAD.size else -1 for raw in indexes]
@@ -256,9 +264,9 @@ class _Scan:
                 self.skipped_chunks += 1
                 return
         try:
-            stream, length = get_chunk_data_stream(chunk, validate_crc=True)
+            stream, length = get_chunk_data_stream(found.read(self.source), validate_crc=True)
             data = stream.read(length)
-            if len(data) != chunk.uncompressed_size:
+            if len(data) != found.uncompressed_size:
                 raise ValueError("size mismatch")
             offsets = self._indexed(data, indexes)
             if offsets is None:
@@ -287,6 +295,8 @@ class _Scan:
             per[ch] = np.frombuffer(raw, "<u8", nbytes // 8, _INDEX_HEAD.size)[1::2].astype(np.int64)
         if not per:
             return None
+        if sum(len(offs) for offs in per.values()) <= _FEW_MESSAGES:
+            return per if self._tiled_few(data, per) else None
         offsets = np.sort(np.concatenate(list(per.values())))
         n = len(data)
         if offsets[0] != 0 or offsets[-1] > n - _HEAD:
@@ -300,6 +310,20 @@ class _Scan:
             if np.any(buf[offs[:, None] + _CHANNEL_BYTES].view("<u2").ravel() != ch):
                 return None
         return per
+
+    @staticmethod
+    def _tiled_few(data: bytes, per: dict[int, np.ndarray]) -> bool:
+        """_indexed's check for a chunk of a few messages (a tick batch's), in plain Python: numpy's per-call cost
+        would be most of it."""
+        pos, n = 0, len(data)
+        for off, ch in sorted((off, ch) for ch, offs in per.items() for off in offs.tolist()):
+            if off != pos or off > n - _HEAD:
+                return False
+            op, length, channel = _MESSAGE_START.unpack_from(data, off)
+            if op != _MESSAGE or channel != ch or length < _HEAD - 9:
+                return False
+            pos = off + 9 + length
+        return pos == n
 
     def _take(self, data: bytes, per: dict[int, np.ndarray]) -> None:
         """The wanted channels' payloads at the given message offsets (file order)."""
@@ -341,26 +365,60 @@ class _Scan:
             pos += 9 + length
 
 
-class _RawMessageIndex(bytes):
-    """A MessageIndex record's body, unparsed (its entries are read with numpy)."""
-
-
 class _LogStreamReader(StreamReader):
-    """mcap's StreamReader, not parsing MessageIndex records (their entries one by one would cost as much as
-    reading the messages): skipped, or with ``keep_message_index`` returned whole as _RawMessageIndex."""
-
-    def __init__(self, *args: Any, keep_message_index: bool = False, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self._keep_message_index = keep_message_index
+    """mcap's StreamReader, skipping MessageIndex records (parsing their entries one by one would cost as
+    much as reading the messages); furuta_rt.io.repair copies logs with it."""
 
     def _read_record(self, opcode: int, length: int) -> Any:
         if opcode == Opcode.MESSAGE_INDEX:
-            body = self._stream.read(length)
-            return _RawMessageIndex(body) if self._keep_message_index else None
+            self._stream.read(length)
+            return None
         return super()._read_record(opcode, length)
 
 
+@dataclass(frozen=True, slots=True)
+class _ChunkAt:
+    """A chunk record found in the file: its header fields and where its (compressed) records lie."""
+
+    message_start_time: int
+    message_end_time: int
+    uncompressed_size: int
+    uncompressed_crc: int
+    compression: str
+    start: int
+    end: int
+
+    def read(self, source: Any) -> Chunk:
+        return Chunk(compression=self.compression, data=source[self.start : self.end],
+                     message_start_time=self.message_start_time, message_end_time=self.message_end_time,
+                     uncompressed_size=self.uncompressed_size, uncompressed_crc=self.uncompressed_crc)
+
+
+_CHUNK_HEAD = struct.Struct("<QQQII")  # message start/end time, uncompressed size and CRC, compression name length
+_U64 = struct.Struct("<Q")
+_RECORD_TYPES = {Opcode.CHANNEL: Channel, Opcode.SCHEMA: Schema, Opcode.METADATA: Metadata,
+                 Opcode.ATTACHMENT: Attachment, Opcode.DATA_END: DataEnd, Opcode.FOOTER: Footer}
+
+
+def _parse_record(op: int, source: Any, start: int, end: int) -> Any:
+    """The record with opcode ``op`` whose body is source[start:end]: a _ChunkAt for a chunk (its records are not
+    copied yet), mcap's record for the kinds a log's reader uses, None for the others."""
+    if op == Opcode.CHUNK:
+        t0, t1, size, crc, name_length = _CHUNK_HEAD.unpack_from(source, start)
+        at = start + _CHUNK_HEAD.size
+        compression = bytes(source[at : at + name_length]).decode()
+        (length,) = _U64.unpack_from(source, at + name_length)
+        data = at + name_length + _U64.size
+        if data + length > end:
+            raise ValueError("a chunk's records run past the chunk record")
+        return _ChunkAt(t0, t1, size, crc, compression, data, data + length)
+    kind = _RECORD_TYPES.get(op)
+    return None if kind is None else kind.read(ReadDataStream(BytesIO(source[start:end])))
+
+
 def _scan(path: Path, want: dict[str, _Columns | _TickBatches], progress: Callable[[int, int], None] | None = None) -> _Scan:
+    """Read the file's records front to back (memory-mapped: a chunk nobody wants is never copied), up to a torn
+    end or the footer."""
     try:
         size = path.stat().st_size
         fh = path.open("rb")
@@ -374,37 +432,52 @@ def _scan(path: Path, want: dict[str, _Columns | _TickBatches], progress: Callab
         if head != MCAP_MAGIC:
             what = "is empty" if not head else "is not an MCAP file (no MCAP magic at the start)"
             raise UserError(f"{path} {what}; give a log written by furuta-rt (or convert a CSV with `furuta-rt convert`)")
-        fh.seek(0)
-        records = _LogStreamReader(fh, emit_chunks=True, record_size_limit=max(size, 1), keep_message_index=True).records
         was_enabled = gc.isenabled()
         gc.disable()  # decoding makes many small dicts; the cyclic collector only slows it down
         try:
-            while True:
-                try:
-                    rec = next(records)
-                except StopIteration:
-                    break
-                except _READ_ERRORS as err:
-                    if not scan.footer:
-                        scan.problem = f"{type(err).__name__} {err}".strip()
-                    break
-                if isinstance(rec, _RawMessageIndex):
-                    scan.pending_index.append(rec)
-                else:
-                    scan.finish_chunk()
-                    _use_record(scan, rec, path)
-                scan.good_end = fh.tell()
-                if progress is not None and isinstance(rec, Chunk):
-                    progress(scan.good_end, size)
-            scan.finish_chunk()
+            with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as source:
+                scan.source = source
+                _scan_records(scan, source, path, progress)
+                scan.finish_chunk()
+                scan.source = None
         finally:
             if was_enabled:
                 gc.enable()
     return scan
 
 
+def _scan_records(scan: _Scan, source: Any, path: Path, progress: Callable[[int, int], None] | None) -> None:
+    size = scan.size
+    pos = scan.good_end = len(MCAP_MAGIC)
+    while pos < size:
+        if size - pos < _RECORD.size:
+            scan.problem = "the file ends inside a record's opcode and length"
+            return
+        op, length = _RECORD.unpack_from(source, pos)
+        start, end = pos + _RECORD.size, pos + _RECORD.size + length
+        if end > size:
+            scan.problem = f"a record (opcode {op:#04x}) of {length} bytes runs past the end of the file"
+            return
+        if op == Opcode.MESSAGE_INDEX:
+            if scan.pending_chunk is not None:
+                scan.pending_index.append(source[start:end])
+        else:
+            scan.finish_chunk()
+            try:
+                rec = _parse_record(op, source, start, end)
+            except _READ_ERRORS as err:
+                scan.problem = f"{type(err).__name__} {err}".strip()
+                return
+            _use_record(scan, rec, path)
+        pos = scan.good_end = end
+        if op == Opcode.CHUNK and progress is not None:
+            progress(pos, size)
+        if op == Opcode.FOOTER:
+            return
+
+
 def _use_record(scan: _Scan, rec: Any, path: Path) -> None:
-    if isinstance(rec, Chunk):
+    if isinstance(rec, _ChunkAt):
         scan.pending_chunk = rec  # used when its message indexes have been read (finish_chunk)
     elif isinstance(rec, Channel):
         scan.add_channel(rec)
