@@ -109,7 +109,7 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--mode", default="none")
     ap.add_argument("--log", type=Path, default=None, help="log to (re)use; default: a cached file in the temp dir")
-    ap.add_argument("--repeat", type=int, default=3, help="take the best of this many runs")
+    ap.add_argument("--repeat", type=int, default=5, help="take the best of this many runs (as scripts/bench)")
     ap.add_argument("--json-ticks", action="store_true", help="also time the log in the layout before tick batches")
     args = ap.parse_args()
     path = args.log or cached_log_path(args.minutes, args.rate, args.mode)

@@ -715,7 +715,10 @@ def bench_replay(quick: bool) -> dict[str, Any]:
         if log.n_ticks == expected and not log.warnings and log.tick_batches:
             break
     out["load_avg_before"] = [round(x, 2) for x in os.getloadavg()]
-    log, result, best_read, best_replay = best_of(path, 2 if quick else 3)
+    # best of five: CPU time on this VM includes the hypervisor's steal and the other engineers' cache traffic,
+    # which the least disturbed of several runs shows least (2-minute log: 0.5 s a run)
+    out["repeats"] = 5
+    log, result, best_read, best_replay = best_of(path, out["repeats"])
     span = log.duration
     x = span / (best_read + best_replay)
     out.update({
@@ -725,7 +728,7 @@ def bench_replay(quick: bool) -> dict[str, Any]:
         "target": f">= {TARGET_X:g}x real time", "met": x >= TARGET_X,
     })
     old_path = json_ticks_copy(path)
-    old_log, old_result, old_read, old_replay = best_of(old_path, 1 if quick else 2)
+    old_log, old_result, old_read, old_replay = best_of(old_path, 2 if quick else 3)
     out["json_ticks"] = {  # a log written before /furuta/tick_batch: still read and replayed exactly
         "file_mb": old_path.stat().st_size / 1e6, "read_cpu_s": old_read, "replay_cpu_s": old_replay,
         "x_real_time": old_log.duration / (old_read + old_replay), "deterministic": old_result.exact,
