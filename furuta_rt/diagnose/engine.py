@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose import checks, gate, identify, latency, peaks, stickslip, verdict, verify
+from furuta_rt.diagnose import checks, gate, identify, latency, onset, peaks, stickslip, verdict, verify
 from furuta_rt.diagnose.decay import DecayFit, DecayResult, free_decay, is_free_decay
 from furuta_rt.diagnose.fitting import Stats, fit, paired_t
 from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, STILL_TICKS, Context
@@ -60,6 +60,10 @@ EXPERIMENTS: dict[frozenset[str], str] = {
     ),
     frozenset({"pendulum_viscous", "pendulum_coulomb"}): (
         "a pendulum free decay from a large angle (viscous damping: exponential envelope; Coulomb: linear)"
+    ),
+    frozenset({"arm_spring", "arm_inertia"}): (
+        "an arm excitation with more than one frequency (a chirp, steps, or a second sine): a spring's torque follows "
+        "φ − φ0 and an inertia's φ̈, which on a single frequency are the same column (k = −ΔJ·ω²)"
     ),
     frozenset({"theta_offset", "arm_spring"}): (
         "a pendulum free decay (it comes to rest hanging at θ = π + offset: a sensor offset shows there, a cable "
@@ -134,6 +138,7 @@ class Diagnosis:
     prediction: dict = field(default_factory=dict, repr=False)  # starts, horizon, train effects (for figures)
     stick: stickslip.WindowStage | None = field(default=None, repr=False)  # the stick–slip windows, when there are sticks
     peak: stickslip.WindowStage | None = field(default=None, repr=False)  # the command-peak windows, when they ran
+    starts: onset.OnsetTiming | None = field(default=None, repr=False)  # the arm's starts from rest, when they timed it
     not_predictive: list[dict] = field(default_factory=list)  # effects the prediction gate moved out (gate.run)
     verdicts: dict[str, verdict.EquationVerdict] = field(default_factory=dict, repr=False)  # per equation
     summary: str = ""  # one line: the verdicts (furuta_rt.diagnose.verdict)
@@ -168,6 +173,7 @@ class Diagnosis:
             "free_decay": self.decay,
             "stick_windows": self.stick.as_json() if self.stick is not None else None,
             "peak_windows": self.peak.as_json() if self.peak is not None else None,
+            "arm_starts": self.starts.as_json() if self.starts is not None else None,
             "fit_details": {k: v for k, v in self.fit.items() if k not in FIT_KEYS},
             "closed_loop": self.closed_loop,
             "equations": {
@@ -287,12 +293,17 @@ def check_lookalikes(
                               "reason": f"{keep} rather than {drop}: {sep['text']}"})
             elif plausible and significant and not apart_by_data:
                 named, rival, rival_model = name, other, alt.params
-                if -opts.ambiguity_gain < rel < 0 and other in CANDIDATES[name].lookalikes and eq not in swaps:
-                    # a tie of the library's look-alikes that the alternative edges on the fair score: it is the one named
+                if rel < 0 and other in CANDIDATES[name].lookalikes and eq not in swaps:
+                    # the library's look-alike wins on the fair score: it is the one named
                     swaps[eq] = alt
                     named, rival, rival_model, rel, t = other, name, base.params, -rel / (1 + rel), -t
                     if sep is not None:  # the κ test read from the model now named
                         sep = gain_inertia_separation(ems[eq], alt, sep_gain, other == "input_gain")
+                    if rel >= opts.ambiguity_gain and (t >= opts.ambiguity_t or rel >= 10 * opts.ambiguity_gain):
+                        apart.append({"effects": [named, rival], "reported": named, "experiment": experiment,
+                                      "reason": f"{rival} in its place fits worse ({100 * rel:+.2f} % held-out error, "
+                                                f"paired t = {t:.1f})"})
+                        continue
                 entry = {
                     "effects": [named, rival], "reported": named,
                     "alternative": {"name": rival, "params": rival_model[rival]},
@@ -461,6 +472,9 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
             stick.tried = [{**t, "pass": 1} for t in first.tried] + [{**t, "pass": 2} for t in stick.tried]
             stick.lookalikes += [a for a in first.lookalikes if a["effects"][1] not in stick.added]
             stick.ambiguities += [a for a in first.ambiguities if a["alternative"]["name"] not in stick.added]
+    starts = _onsets(ctx, found, ems, res, opts)
+    if starts is not None and starts.total is not None:
+        found = [f for eq in res for f in _found(ems[eq], res[eq], [])]
     peak = _peak_windows(ctx, found, ems, res, opts) if opts.stick_windows else None
     ambiguities, lookalikes, swaps = check_lookalikes(ems, res, opts)
     for eq, alt in swaps.items():  # the look-alike test favours the alternative: it becomes the equation's model
@@ -501,7 +515,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
         effects=found, fit=fit_summary, located=located, ambiguities=ambiguities, lookalikes=lookalikes,
         equations=res, closed_loop=closed, notes=notes, seconds=time.perf_counter() - t0, rig=rig.name, context=ctx,
         models=ems, prediction=prediction, decay=decay.as_json() if decay is not None else None, decay_result=decay,
-        stick=stick, peak=peak, not_predictive=gated.not_predictive, verdicts=verdicts,
+        stick=stick, peak=peak, starts=starts, not_predictive=gated.not_predictive, verdicts=verdicts,
         summary=verdict.summary(verdicts),
         identification=ident,
     )
@@ -722,6 +736,27 @@ def _retimed(stick: stickslip.WindowStage | None, found: list[Found], ems: dict[
                               r.trace, r.location)
     refit_arm = {f.name: f for f in _found(ems[ARM], res[ARM], []) if f.name != "input_delay"}
     return [refit_arm.get(f.name, f) if f.equation == ARM and f.source == "inverse dynamics" else f for f in found]
+
+
+def _onsets(ctx: Context, found: list[Found], ems: dict[str, EquationModel], res: dict[str, EquationResult],
+            opts: Options) -> onset.OnsetTiming | None:
+    """The arm's starts from rest (furuta_rt.diagnose.onset), where no latency was found: with a total latency they
+    pin, the arm model is refitted at it (latency._refit_at) with the latency among its effects."""
+    if any(f.name in latency.LATENCY_EFFECTS for f in found) or ems[ARM].n_rows < 20 * opts.thresholds.n_blocks:
+        return None
+    timing = onset.assess(ctx.rig, {**ctx.known, **{f.name: f.params for f in found}}, ctx.prep, ctx.fine)
+    if timing is None or timing.total is None:
+        return timing
+    value = timing.total - ctx.prep.command_lag  # path.delay: on top of the config's lag
+    name = "input_delay" if value > 0 else "command_latency"
+    r = res[ARM]
+    ev = latency._refit_at(ems[ARM], r.selected.spec.with_effect(name), value, r.selected)
+    ev.t_stat[name] = abs(value) / timing.se
+    ev.se[name] = {"delay": timing.se}
+    res[ARM] = EquationResult(ARM, r.rows, r.nominal, ev, r.trace, r.location)
+    r.trace.append({"step": len(ev.spec.effects), "candidate": "latency (arm starts)", "accepted": True, "ok": True,
+                    "t": ev.t_stat[name], "value": value, "params": timing.as_json(), "cv_gain": 0.0})
+    return timing
 
 
 def _provisional_coulomb(em: EquationModel, r: EquationResult, opts: Options) -> float | None:

@@ -115,7 +115,8 @@ def settle(em: EquationModel, selected: Evaluation, trace: list[dict] | None = N
     if joint_j:  # ΔJ in the selection's units (acceleration-weighted profile) at the lag found
         spec = em.evaluate_with(spec.without("arm_inertia"), "arm_inertia").spec
     out = _backward(em, em.evaluate(spec), name)
-    out.t_stat[name] = abs(value - null_delay) / se
+    # its significance is the test above (the likelihood ratio's signed root), not the fold-wise optima's scatter alone
+    out.t_stat[name] = max(abs(value - null_delay) / se, float(np.sqrt(max(lr, 0.0))))
     out.se[name] = {"delay": se}
     kept = [k for k in out.spec.effects if CANDIDATES[k].nonlinear and k != name]
     out.t_stat.update({k: selected.t_stat[k] for k in kept if k in selected.t_stat})

@@ -510,9 +510,9 @@ CANDIDATES: dict[str, Candidate] = {
     for c in (
         Candidate("arm_coulomb", ARM, "Fc", lookalikes=("input_deadzone",)),
         Candidate("arm_viscous", ARM, "Fv"),
-        Candidate("arm_spring", ARM, "k", lookalikes=("theta_offset",), excludes=("arm_bias",)),
+        Candidate("arm_spring", ARM, "k", lookalikes=("theta_offset", "arm_inertia"), excludes=("arm_bias",)),
         Candidate("arm_bias", ARM, "tau", lookalikes=("theta_offset", "input_gain"), excludes=("arm_spring",)),
-        Candidate("arm_inertia", ARM, "J", lookalikes=("input_gain",), nonlinear="inertia"),
+        Candidate("arm_inertia", ARM, "J", lookalikes=("input_gain", "arm_spring"), nonlinear="inertia"),
         Candidate("input_gain", ARM, "gain", lookalikes=("arm_inertia", "arm_bias")),
         Candidate("input_delay", ARM, "delay", nonlinear="delay", excludes=("command_latency",)),
         Candidate("command_latency", ARM, "delay", nonlinear="latency", excludes=("input_delay",)),

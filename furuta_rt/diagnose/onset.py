@@ -1,0 +1,157 @@
+"""The actuator's timing read from the arm's starts (issue 14, item 2: the command latency measured).
+
+The latency stage (furuta_rt.diagnose.latency) times the actuator on the arm equation's rows. Where the arm rests
+and a command step starts it — the commonest bench test, one voltage step from rest — those rows carry almost no
+timing: the rows at the start are left out (the kernel reaches back into the rest), and what follows is a smooth
+run-up whose phase a delay and an inertia trade. The start itself is sharp. With the command stepping at tick k,
+the arm leaves its encoder count a latency plus a fraction of a tick later, and its next counts follow
+φ − φ_rest ≈ ½·a·(t − t_k − L)²: on a rig whose encoder resolves a few counts per tick of travel, L is pinned to a
+fraction of a tick.
+
+Per start — a command step of at least STEP_SHARE of the largest command, the arm still (within REST_COUNTS) for
+REST_SECONDS before it and leaving by ONSET_COUNTS within ONSET_SECONDS after — the arm is simulated from rest with
+the model found (furuta_rt.diagnose.stickslip.simulate_arm: eq. 4 with the shared friction and actuator chain, the
+pendulum teacher-forced) at total latencies on a quarter-tick grid, from the step until it has moved ONSET_COUNTS,
+and compared with the measured counts. A latency is *consistent* with a start when the simulated arm never strays
+more than MAX_STRAY counts from the measured count (the encoder's resolution, with room for the model's own small
+error over a few tens of counts). The latency is reported when the config's is consistent with none of the starts
+and the starts' best latencies agree within SPREAD_TICKS; it is the mean of those optima, its standard error their
+scatter (at least a quarter tick over √12, the grid's). One start suffices — it is one sharp event, not a
+statistical average — but each start must be explained: a start no latency on the grid makes consistent (a model
+that is wrong elsewhere, a breakaway from stiction) stops the stage. The stage runs only where the latency stage
+reported nothing, on a commanded recording.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from furuta_rt.config import RigConfig
+from furuta_rt.diagnose.signals import Prepared, States
+from furuta_rt.diagnose.stickslip import Window, simulate_arm
+from furuta_rt.diagnose.verify import quiet
+from furuta_rt.model.effects import Effects
+from furuta_rt.model.rig import RigModel
+
+STEP_SHARE = 0.2  # a command step of at least this share of the largest |command|
+REST_SECONDS = 0.1  # the arm within REST_COUNTS of one count for this long before the step
+REST_COUNTS = 1
+ONSET_COUNTS = 20  # the start is followed until the arm has moved this many counts ...
+ONSET_SECONDS = 0.1  # ... within this long after the step (else it is no start)
+LEAD_TICKS = 3  # the simulation starts this many ticks before the step
+MAX_STRAY = 1.0  # counts: a latency is consistent with a start when the simulated arm stays this close to the counts
+SPREAD_TICKS = 0.5  # the starts' best latencies must agree within this
+MAX_TICKS = 12.0  # the grid of total latencies, in ticks, from 0
+MAX_STARTS = 8
+GRID_STEP_TICKS = 0.25  # the delay line's resolution at the windows' 2 kHz substeps on a 500 Hz loop
+
+
+@dataclass(frozen=True)
+class Start:
+    step: int  # tick of the command step
+    window: Window
+
+
+@dataclass
+class OnsetTiming:
+    """What the starts say: the total latency (s) that every start is consistent with, or why none."""
+
+    starts: list[int]  # ticks of the command steps used
+    total: float | None  # s, sample instant → torque acting
+    se: float
+    config_total: float
+    stray_at_config: list[float]  # counts, per start
+    best: list[float]  # s, per start
+    reason: str
+
+    def as_json(self) -> dict:
+        return {"starts_s": self.starts, "total": self.total, "se": self.se, "config_total": self.config_total,
+                "stray_at_config_counts": self.stray_at_config, "best_per_start": self.best, "reason": self.reason}
+
+
+def starts(prep: Prepared) -> list[Start]:
+    """The command steps that start the arm from rest (module docstring), at most MAX_STARTS, spread over the file."""
+    u, lsb = prep.u, prep.phi_lsb
+    if u is None or not np.any(u):
+        return []
+    cnt = np.round(prep.phi / lsb)
+    rest, onset = round(REST_SECONDS / prep.dt), round(ONSET_SECONDS / prep.dt)
+    big = STEP_SHARE * float(np.max(np.abs(u)))
+    valid = prep.valid
+    out: list[Start] = []
+    for k in np.flatnonzero(np.abs(np.diff(u)) >= big) + 1:
+        a, b = k - rest - LEAD_TICKS, k + onset
+        if a < 0 or b >= len(u) or not valid[a:b].all():
+            continue
+        before = cnt[a : k + 1]
+        if before.max() - before.min() > REST_COUNTS:
+            continue
+        moved = np.flatnonzero(np.abs(cnt[k:b] - cnt[k]) >= ONSET_COUNTS)
+        if not len(moved):
+            continue
+        start = k - LEAD_TICKS
+        out.append(Start(int(k), Window(start, int(moved[0]) + LEAD_TICKS + 1, int(k), phi_dot=0.0)))
+    if len(out) > MAX_STARTS:
+        out = [out[i] for i in np.linspace(0, len(out) - 1, MAX_STARTS).round().astype(int)]
+    return out
+
+
+def _with_total(found: dict[str, dict[str, float]], total: float, lag: float) -> dict[str, dict[str, float]]:
+    """``found`` with the total latency ``total`` (s): an input_delay on top of the config's lag, or a
+    command_latency (the total) when shorter."""
+    eff = {k: v for k, v in found.items() if k not in ("input_delay", "command_latency")}
+    if total >= lag:
+        eff["input_delay"] = {"delay": total - lag}
+    else:
+        eff["command_latency"] = {"delay": total}
+    return eff
+
+
+def stray(rig: RigConfig, eff: dict[str, dict[str, float]], prep: Prepared, fine: States, s: Start) -> float:
+    """The largest distance (counts) of the arm simulated with ``eff`` from the measured counts over the start."""
+    model = RigModel.from_config(quiet(rig), Effects.model_validate(eff))
+    w = s.window
+    sim = simulate_arm(model, prep, fine, w)
+    measured = prep.phi[w.start + 1 : w.start + 1 + w.horizon]
+    d = (sim - prep.phi[w.start]) - (measured - prep.phi[w.start])
+    return float(np.max(np.abs(d)) / prep.phi_lsb)
+
+
+def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, fine: States) -> OnsetTiming | None:
+    """The total latency the arm's starts pin (module docstring); None without a start."""
+    ss = starts(prep)
+    if not ss or not prep.commanded:
+        return None
+    h, lag = prep.dt, prep.command_lag
+    config_total = float(found["command_latency"]["delay"]) if "command_latency" in found else (
+        lag + float(found.get("input_delay", {}).get("delay", 0.0)))
+    grid = np.arange(0.0, MAX_TICKS + 1e-9, GRID_STEP_TICKS) * h
+    at_config = [stray(rig, found, prep, fine, s) for s in ss]
+    best: list[float] = []
+    for s in ss:
+        strays = np.array([stray(rig, _with_total(found, float(g), lag), prep, fine, s) for g in grid])
+        i = int(np.argmin(strays))
+        if strays[i] > MAX_STRAY:
+            return OnsetTiming([s.step * h for s in ss], None, 0.0, config_total, at_config, best,
+                               f"the start at t = {s.step * h:.3f} s is not explained at any latency (the arm strays "
+                               f"{strays[i]:.1f} counts at best): the model found is not right there")
+        lo, hi = max(i - 1, 0), min(i + 1, len(grid) - 1)  # the parabola's vertex through the three around the best
+        y = strays[[lo, i, hi]]
+        den = y[0] - 2 * y[1] + y[2]
+        best.append(float(grid[i] + (0.5 * (y[0] - y[2]) / den * GRID_STEP_TICKS * h if lo < i < hi and den > 0 else 0.0)))
+    times = [s.step * h for s in ss]
+    spread = max(best) - min(best)
+    total = float(np.mean(best))
+    se = max(float(np.std(best, ddof=1) / np.sqrt(len(best))) if len(best) > 1 else 0.0, GRID_STEP_TICKS * h / np.sqrt(12))
+    if spread > SPREAD_TICKS * h:
+        return OnsetTiming(times, None, se, config_total, at_config, best,
+                           f"the starts disagree: best latencies {min(best) / h:.2f}–{max(best) / h:.2f} ticks")
+    if min(at_config) <= MAX_STRAY:
+        return OnsetTiming(times, None, se, config_total, at_config, best,
+                           "the config's latency is consistent with the starts")
+    return OnsetTiming(times, total, se, config_total, at_config, best,
+                       f"{len(ss)} start(s) from rest pin the total latency at {total / h:.2f} ticks ({1e3 * total:.2f} ms; "
+                       f"the config's {config_total / h:.2f} ticks leaves the simulated arm ≥ {min(at_config):.1f} counts "
+                       f"from the encoder's)")
