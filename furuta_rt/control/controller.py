@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -40,14 +40,18 @@ from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.sensors import Measurement
 
 
-@dataclass(slots=True)
-class ControlOutput:
+class ControlOutput(NamedTuple):
+    """One tick's output of ``Controller.update`` (a named tuple: made in one C call, every tick)."""
+
     u: float
     u_lin: float
     u_comp: float
     phi_dot_hat: float
     saturated: bool
     swinging: bool = False  # the command came from the swing-up (not from balancing)
+
+
+_new_output = tuple.__new__  # ControlOutput without its Python-level __new__ (all six fields given)
 
 
 def design_gains(rig: RigConfig) -> np.ndarray:
@@ -209,7 +213,7 @@ class Controller:
         else:
             applied = u - u_comp
         obs.predict(theta if su is None else self._observer_theta(theta), applied)
-        return ControlOutput(u, u_lin, u_comp, phi_dot, saturated, self.swinging)
+        return _new_output(ControlOutput, (u, u_lin, u_comp, phi_dot, saturated, self.swinging))
 
     def hold(self, m: Measurement) -> float:
         """Track the measurement without commanding (idle/tripped): keeps the observer converged.
