@@ -10,7 +10,6 @@ Sign convention as in the thesis: u = +L·x, so the closed loop is ẋ = (A + B 
 
 from __future__ import annotations
 
-import control
 import numpy as np
 
 from furuta_rt.config import ActuatorConfig
@@ -47,6 +46,8 @@ def pole_placement_gains(
 
 def place_gains(plant: FurutaPlant, poles: np.ndarray, actuator: ActuatorConfig | None = None) -> np.ndarray:
     """L by python-control's ``place`` on eq. 6 (K of A − BK, so L = −K)."""
+    import control  # imported here, not above: it pulls in scipy.signal and matplotlib, ~2 s of every CLI start
+
     A, B = actuated_linearization(plant, actuator) if actuator else plant.linearize()
     K = control.place(A, B, poles)
     return -np.asarray(K).ravel()
@@ -56,6 +57,8 @@ def lqr_gains(
     plant: FurutaPlant, Q: list[float] | np.ndarray, R: float, actuator: ActuatorConfig | None = None
 ) -> np.ndarray:
     """Continuous LQR on eq. 6 with diagonal Q and scalar R; returns L = −K."""
+    import control  # see place_gains
+
     A, B = actuated_linearization(plant, actuator) if actuator else plant.linearize()
     K, _, _ = control.lqr(A, B, np.diag(np.asarray(Q, dtype=float)), np.array([[R]]))
     return -np.asarray(K).ravel()
