@@ -293,8 +293,12 @@ def check_lookalikes(
                               "reason": f"{keep} rather than {drop}: {sep['text']}"})
             elif plausible and significant and not apart_by_data:
                 named, rival, rival_model = name, other, alt.params
-                if rel < 0 and other in CANDIDATES[name].lookalikes and eq not in swaps:
-                    # the library's look-alike wins on the fair score: it is the one named
+                # a tie of the library's look-alikes that the alternative edges (by < 1 %) is named; and a datasheet
+                # parameter of the model (select.JOINT) in place of an effect the model does not have, whenever it
+                # scores better (the parameter is the simpler account: a spring on a one-frequency sine is an inertia)
+                prefer = other in JOINT and name not in JOINT
+                if (rel < 0 if prefer else -opts.ambiguity_gain < rel < 0) and other in CANDIDATES[name].lookalikes \
+                        and eq not in swaps:
                     swaps[eq] = alt
                     named, rival, rival_model, rel, t = other, name, base.params, -rel / (1 + rel), -t
                     if sep is not None:  # the κ test read from the model now named

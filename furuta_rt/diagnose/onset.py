@@ -1,30 +1,32 @@
 """The actuator's timing read from the arm's starts (issue 14, item 2: the command latency measured).
 
-The latency stage (furuta_rt.diagnose.latency) times the actuator on the arm equation's rows. Where the arm rests
-and a command step starts it — the commonest bench test, one voltage step from rest — those rows carry almost no
-timing: the rows at the start are left out (the kernel reaches back into the rest), and what follows is a smooth
-run-up whose phase a delay and an inertia trade. The start itself is sharp. With the command stepping at tick k,
-the arm leaves its encoder count a latency plus a fraction of a tick later, and its next counts follow
-φ − φ_rest ≈ ½·a·(t − t_k − L)²: on a rig whose encoder resolves a few counts per tick of travel, L is pinned to a
-fraction of a tick.
+The latency stage (furuta_rt.diagnose.latency) times the actuator on the arm equation's rows. Where the arm rests and
+a command step starts it — the commonest bench test, one voltage step from rest — those rows carry almost no timing:
+the rows at the start are left out (the kernel reaches back into the rest), and what follows is a smooth run-up whose
+phase a delay and an inertia trade. The start itself is sharp. With the command stepping at tick k, the arm leaves its
+encoder count a latency plus a fraction of a tick later, and its next counts follow φ − φ_rest ≈ ½·a·(t − t_k − L)²:
+on a rig whose encoder resolves a few counts per tick of travel, L is pinned to a fraction of a tick.
 
 Per start — a command step of at least STEP_SHARE of the largest command, the arm still (within REST_COUNTS) for
 REST_SECONDS before it and leaving by ONSET_COUNTS within ONSET_SECONDS after — the arm is simulated from rest with
 the model found (furuta_rt.diagnose.stickslip.simulate_arm: eq. 4 with the shared friction and actuator chain, the
-pendulum teacher-forced) at total latencies on a quarter-tick grid, from the step until it has moved ONSET_COUNTS,
-and compared with the measured counts. A latency is *consistent* with a start when the simulated arm never strays
-more than MAX_STRAY counts from the measured count (the encoder's resolution, with room for the model's own small
-error over a few tens of counts). The latency is reported when the config's is consistent with none of the starts
-and the starts' best latencies agree within SPREAD_TICKS; it is the mean of those optima, its standard error their
-scatter (at least a quarter tick over √12, the grid's). One start suffices — it is one sharp event, not a
-statistical average — but each start must be explained: a start no latency on the grid makes consistent (a model
-that is wrong elsewhere, a breakaway from stiction) stops the stage. The stage runs only where the latency stage
-reported nothing, on a commanded recording.
+pendulum teacher-forced) at total latencies on a quarter-tick grid, from the step until it has moved ONSET_COUNTS, and
+compared with the measured counts. A latency is *consistent* with a start when the simulated arm never strays more
+than MAX_STRAY counts from the measured count (the encoder's half count, with a quarter count of room for the model's
+own small error over a few tens of counts). The latency is reported when the config's is consistent with none of the
+starts — and leaves the arm at least EVIDENCE times as far from the counts as the best latency does on each (the
+model's own error, not only the latency, moves the arm by fractions of a count: a gain ↔ inertia look-alike named the
+wrong way left 1.8 counts at the config's latency against 0.95 at the best, a pendulum length 10 % off 0.77–1.23
+against 0.42–0.72; the true latencies 2.1–9.4 against 0.47–0.66) — and the starts' best latencies agree within
+SPREAD_TICKS; it is the mean of those optima, its standard error their scatter (at least a quarter tick over √12, the
+grid's). One start suffices — it is one sharp event, not a statistical average — but each start must be explained: a
+start no latency on the grid makes consistent (a model that is wrong elsewhere, a breakaway from stiction) stops the
+stage. The stage runs only where the latency stage reported nothing, on a commanded recording.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,7 +43,10 @@ REST_COUNTS = 1
 ONSET_COUNTS = 20  # the start is followed until the arm has moved this many counts ...
 ONSET_SECONDS = 0.1  # ... within this long after the step (else it is no start)
 LEAD_TICKS = 3  # the simulation starts this many ticks before the step
-MAX_STRAY = 1.0  # counts: a latency is consistent with a start when the simulated arm stays this close to the counts
+MAX_STRAY = 0.75  # counts: a latency is consistent with a start when the simulated arm stays this close to the counts
+# (the encoder's half count, and a quarter for the model's own error: the right model at the right latency stays within
+# 0.47–0.66 counts on the realistic single steps; a gain ↔ inertia look-alike named in the wrong way strays 0.95 at best)
+EVIDENCE = 3.0  # the config's latency must leave the arm this many times as far from the counts as the best does
 SPREAD_TICKS = 0.5  # the starts' best latencies must agree within this
 MAX_TICKS = 12.0  # the grid of total latencies, in ticks, from 0
 MAX_STARTS = 8
@@ -65,10 +70,12 @@ class OnsetTiming:
     stray_at_config: list[float]  # counts, per start
     best: list[float]  # s, per start
     reason: str
+    stray_at_best: list[float] = field(default_factory=list)  # counts, per start
 
     def as_json(self) -> dict:
         return {"starts_s": self.starts, "total": self.total, "se": self.se, "config_total": self.config_total,
-                "stray_at_config_counts": self.stray_at_config, "best_per_start": self.best, "reason": self.reason}
+                "stray_at_config_counts": self.stray_at_config, "best_per_start": self.best,
+                "stray_at_best_counts": self.stray_at_best, "reason": self.reason}
 
 
 def starts(prep: Prepared) -> list[Start]:
@@ -130,13 +137,15 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
     grid = np.arange(0.0, MAX_TICKS + 1e-9, GRID_STEP_TICKS) * h
     at_config = [stray(rig, found, prep, fine, s) for s in ss]
     best: list[float] = []
+    at_best: list[float] = []
     for s in ss:
         strays = np.array([stray(rig, _with_total(found, float(g), lag), prep, fine, s) for g in grid])
         i = int(np.argmin(strays))
+        at_best.append(float(strays[i]))
         if strays[i] > MAX_STRAY:
             return OnsetTiming([s.step * h for s in ss], None, 0.0, config_total, at_config, best,
                                f"the start at t = {s.step * h:.3f} s is not explained at any latency (the arm strays "
-                               f"{strays[i]:.1f} counts at best): the model found is not right there")
+                               f"{strays[i]:.1f} counts at best): the model found is not right there", at_best)
         lo, hi = max(i - 1, 0), min(i + 1, len(grid) - 1)  # the parabola's vertex through the three around the best
         y = strays[[lo, i, hi]]
         den = y[0] - 2 * y[1] + y[2]
@@ -147,11 +156,15 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
     se = max(float(np.std(best, ddof=1) / np.sqrt(len(best))) if len(best) > 1 else 0.0, GRID_STEP_TICKS * h / np.sqrt(12))
     if spread > SPREAD_TICKS * h:
         return OnsetTiming(times, None, se, config_total, at_config, best,
-                           f"the starts disagree: best latencies {min(best) / h:.2f}–{max(best) / h:.2f} ticks")
+                           f"the starts disagree: best latencies {min(best) / h:.2f}–{max(best) / h:.2f} ticks", at_best)
     if min(at_config) <= MAX_STRAY:
         return OnsetTiming(times, None, se, config_total, at_config, best,
-                           "the config's latency is consistent with the starts")
+                           "the config's latency is consistent with the starts", at_best)
+    if any(c < EVIDENCE * b for c, b in zip(at_config, at_best, strict=True)):
+        return OnsetTiming(times, None, se, config_total, at_config, best,
+                           f"the config's latency is not far enough from the starts (the simulated arm strays less than "
+                           f"{EVIDENCE:g}× as far as at the best latency)", at_best)
     return OnsetTiming(times, total, se, config_total, at_config, best,
                        f"{len(ss)} start(s) from rest pin the total latency at {total / h:.2f} ticks ({1e3 * total:.2f} ms; "
                        f"the config's {config_total / h:.2f} ticks leaves the simulated arm ≥ {min(at_config):.1f} counts "
-                       f"from the encoder's)")
+                       f"from the encoder's)", at_best)
