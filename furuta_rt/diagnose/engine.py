@@ -269,7 +269,7 @@ def check_lookalikes(
             plausible = CANDIDATES[other].plausible(alt.params[other], ems[eq].ctx.rig, ems[eq].ctx.arm_travel)
             rel = (alt.cv - base.cv) / base.cv
             # told apart: the alternative is clearly worse (by ≥ 1 % and consistently over the blocks, or by ≥ 10 %)
-            apart_by_data = rel >= opts.ambiguity_gain and (t >= opts.ambiguity_t or rel >= 10 * opts.ambiguity_gain)
+            apart_by_data = _clearly_worse(rel, t, opts)
             significant = alt.t_stat.get(other, 0.0) >= opts.thresholds.t_min
             rest = rest_test(ems[eq].ctx, r.selected if name == "arm_bias" else alt) if "arm_bias" in pair else None
             if rest is not None and rest["contradicts"] and (name != "arm_bias" or (plausible and significant)):
@@ -303,7 +303,7 @@ def check_lookalikes(
                     named, rival, rival_model, rel, t = other, name, base.params, -rel / (1 + rel), -t
                     if sep is not None:  # the κ test read from the model now named
                         sep = gain_inertia_separation(ems[eq], alt, sep_gain, other == "input_gain")
-                    if rel >= opts.ambiguity_gain and (t >= opts.ambiguity_t or rel >= 10 * opts.ambiguity_gain):
+                    if _clearly_worse(rel, t, opts):  # the effect first selected, against the parameter now named
                         apart.append({"effects": [named, rival], "reported": named, "experiment": experiment,
                                       "reason": f"{rival} in its place fits worse ({100 * rel:+.2f} % held-out error, "
                                                 f"paired t = {t:.1f})"})
@@ -329,6 +329,12 @@ def check_lookalikes(
                     why = f"{other} in its place fits worse ({100 * rel:+.2f} % held-out error, paired t = {t:.1f})"
                 apart.append({"effects": [name, other], "reported": name, "reason": why, "experiment": experiment})
     return ambiguous, apart, swaps
+
+
+def _clearly_worse(rel: float, t: float, opts: Options) -> bool:
+    """Whether a look-alike's held-out error ``rel`` (relative, against the model named) and paired t tell it apart:
+    worse by ≥ ambiguity_gain and consistently over the blocks, or by ≥ 10 × ambiguity_gain."""
+    return rel >= opts.ambiguity_gain and (t >= opts.ambiguity_t or rel >= 10 * opts.ambiguity_gain)
 
 
 def fair_baseline(em: EquationModel, selected: Evaluation, name: str) -> Evaluation:
@@ -477,8 +483,8 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
             stick.lookalikes += [a for a in first.lookalikes if a["effects"][1] not in stick.added]
             stick.ambiguities += [a for a in first.ambiguities if a["alternative"]["name"] not in stick.added]
     starts = _onsets(ctx, found, ems, res, opts)
-    if starts is not None and starts.total is not None:
-        found = [f for eq in res for f in _found(ems[eq], res[eq], [])]
+    if starts is not None and starts.total is not None:  # the arm refitted at the latency the starts pin
+        found = _refit_arm_found(found, ems, res, new=latency.LATENCY_EFFECTS)
     peak = _peak_windows(ctx, found, ems, res, opts) if opts.stick_windows else None
     ambiguities, lookalikes, swaps = check_lookalikes(ems, res, opts)
     for eq, alt in swaps.items():  # the look-alike test favours the alternative: it becomes the equation's model
@@ -738,8 +744,17 @@ def _retimed(stick: stickslip.WindowStage | None, found: list[Found], ems: dict[
     r = res[ARM]
     res[ARM] = EquationResult(ARM, r.rows, r.nominal, latency.retimed(ems[ARM], r.selected, stick.added["input_delay"]["delay"]),
                               r.trace, r.location)
-    refit_arm = {f.name: f for f in _found(ems[ARM], res[ARM], []) if f.name != "input_delay"}
-    return [refit_arm.get(f.name, f) if f.equation == ARM and f.source == "inverse dynamics" else f for f in found]
+    return _refit_arm_found(found, ems, res, skip=("input_delay",))
+
+
+def _refit_arm_found(found: list[Found], ems: dict[str, EquationModel], res: dict[str, EquationResult],
+                     skip: tuple[str, ...] = (), new: tuple[str, ...] = ()) -> list[Found]:
+    """``found`` with the arm regression's effects read again from its refitted model ``res[ARM]`` (``skip``: left
+    as found, e.g. a delay a window stage reports; ``new``: effects the refit added, appended), every other effect as
+    it was (one a window stage replaced stays out)."""
+    fresh = {f.name: f for f in _found(ems[ARM], res[ARM], []) if f.name not in skip}
+    out = [fresh.get(f.name, f) if f.equation == ARM and f.source == "inverse dynamics" else f for f in found]
+    return out + [fresh[n] for n in new if n in fresh]
 
 
 def _onsets(ctx: Context, found: list[Found], ems: dict[str, EquationModel], res: dict[str, EquationResult],
@@ -752,7 +767,7 @@ def _onsets(ctx: Context, found: list[Found], ems: dict[str, EquationModel], res
     if timing is None or timing.total is None:
         return timing
     value = timing.total - ctx.prep.command_lag  # path.delay: on top of the config's lag
-    name = "input_delay" if value > 0 else "command_latency"
+    name = latency.effect_for(value)
     r = res[ARM]
     ev = latency._refit_at(ems[ARM], r.selected.spec.with_effect(name), value, r.selected)
     ev.t_stat[name] = abs(value) / timing.se

@@ -35,6 +35,12 @@ MIN_TICKS = 0.25  # a departure from the config's latency smaller than this is n
 MAX_DELAY = 0.05  # s on top of the config's lag (as select.EquationModel.grid("delay"))
 
 
+def effect_for(value: float) -> str:
+    """The latency effect that carries a command-path delay ``value`` (s) on top of the config's lag: a longer
+    latency is an ``input_delay`` (of ``value``), a shorter one a ``command_latency`` (the total)."""
+    return "input_delay" if value > 0 else "command_latency"
+
+
 def _without_latency(spec: Spec) -> Spec:
     for name in LATENCY_EFFECTS:
         if name in spec.effects:
@@ -102,7 +108,7 @@ def settle(em: EquationModel, selected: Evaluation, trace: list[dict] | None = N
     lr = n_eff * float(np.log(at_config_fit.sse / f.sse)) if f.sse > 0 else 0.0
     ok = (far and causal and gain >= 2 * em.th.min_gain and (lr >= em.th.t_min**2 or gain >= em.th.strong_gain)
           and cv0 - cv > em.bic_penalty(1, cv))
-    name = "input_delay" if value > 0 else "command_latency"
+    name = effect_for(value)
     if trace is not None:
         trace.append({"step": len(selected.spec.effects), "candidate": "latency (joint)", "joint": True,
                       "cv_gain": gain, "t": abs(value - null_delay) / se, "params": {"total": total, "se": se, "lr": lr},

@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from furuta_rt.config import RigConfig
+from furuta_rt.diagnose.fitting import vertex
+from furuta_rt.diagnose.latency import LATENCY_EFFECTS, effect_for
 from furuta_rt.diagnose.signals import Prepared, States
 from furuta_rt.diagnose.stickslip import Window, simulate_arm
 from furuta_rt.diagnose.verify import quiet
@@ -107,23 +109,22 @@ def starts(prep: Prepared) -> list[Start]:
 
 def _with_total(found: dict[str, dict[str, float]], total: float, lag: float) -> dict[str, dict[str, float]]:
     """``found`` with the total latency ``total`` (s): an input_delay on top of the config's lag, or a
-    command_latency (the total) when shorter."""
-    eff = {k: v for k, v in found.items() if k not in ("input_delay", "command_latency")}
-    if total >= lag:
-        eff["input_delay"] = {"delay": total - lag}
-    else:
-        eff["command_latency"] = {"delay": total}
+    command_latency (the total) when shorter (latency.effect_for)."""
+    eff = {k: v for k, v in found.items() if k not in LATENCY_EFFECTS}
+    name = effect_for(total - lag)
+    eff[name] = {"delay": total - lag if name == "input_delay" else total}
     return eff
 
 
-def stray(rig: RigConfig, eff: dict[str, dict[str, float]], prep: Prepared, fine: States, s: Start) -> float:
-    """The largest distance (counts) of the arm simulated with ``eff`` from the measured counts over the start."""
-    model = RigModel.from_config(quiet(rig), Effects.model_validate(eff))
+def _model(rig: RigConfig, eff: dict[str, dict[str, float]]) -> RigModel:
+    return RigModel.from_config(quiet(rig), Effects.model_validate(eff))
+
+
+def stray(model: RigModel, prep: Prepared, fine: States, s: Start) -> float:
+    """The largest distance (counts) of the arm simulated with ``model`` from the measured counts over the start."""
     w = s.window
     sim = simulate_arm(model, prep, fine, w)
-    measured = prep.phi[w.start + 1 : w.start + 1 + w.horizon]
-    d = (sim - prep.phi[w.start]) - (measured - prep.phi[w.start])
-    return float(np.max(np.abs(d)) / prep.phi_lsb)
+    return float(np.max(np.abs(sim - prep.phi[w.start + 1 : w.start + 1 + w.horizon])) / prep.phi_lsb)
 
 
 def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, fine: States) -> OnsetTiming | None:
@@ -135,36 +136,35 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
     config_total = float(found["command_latency"]["delay"]) if "command_latency" in found else (
         lag + float(found.get("input_delay", {}).get("delay", 0.0)))
     grid = np.arange(0.0, MAX_TICKS + 1e-9, GRID_STEP_TICKS) * h
-    at_config = [stray(rig, found, prep, fine, s) for s in ss]
+    config_model = _model(rig, found)
+    at_config = [stray(config_model, prep, fine, s) for s in ss]
+    models = [_model(rig, _with_total(found, float(g), lag)) for g in grid]  # one per latency, shared by the starts
+    times = [s.step * h for s in ss]
     best: list[float] = []
     at_best: list[float] = []
+    se = GRID_STEP_TICKS * h / np.sqrt(12)
+
+    def result(total: float | None, reason: str) -> OnsetTiming:
+        return OnsetTiming(times, total, se, config_total, at_config, best, reason, at_best)
+
     for s in ss:
-        strays = np.array([stray(rig, _with_total(found, float(g), lag), prep, fine, s) for g in grid])
+        strays = np.array([stray(m, prep, fine, s) for m in models])
         i = int(np.argmin(strays))
         at_best.append(float(strays[i]))
         if strays[i] > MAX_STRAY:
-            return OnsetTiming([s.step * h for s in ss], None, 0.0, config_total, at_config, best,
-                               f"the start at t = {s.step * h:.3f} s is not explained at any latency (the arm strays "
-                               f"{strays[i]:.1f} counts at best): the model found is not right there", at_best)
-        lo, hi = max(i - 1, 0), min(i + 1, len(grid) - 1)  # the parabola's vertex through the three around the best
-        y = strays[[lo, i, hi]]
-        den = y[0] - 2 * y[1] + y[2]
-        best.append(float(grid[i] + (0.5 * (y[0] - y[2]) / den * GRID_STEP_TICKS * h if lo < i < hi and den > 0 else 0.0)))
-    times = [s.step * h for s in ss]
-    spread = max(best) - min(best)
+            return result(None, f"the start at t = {s.step * h:.3f} s is not explained at any latency (the arm strays "
+                                f"{strays[i]:.1f} counts at best): the model found is not right there")
+        best.append(vertex(grid, strays, i))
     total = float(np.mean(best))
-    se = max(float(np.std(best, ddof=1) / np.sqrt(len(best))) if len(best) > 1 else 0.0, GRID_STEP_TICKS * h / np.sqrt(12))
-    if spread > SPREAD_TICKS * h:
-        return OnsetTiming(times, None, se, config_total, at_config, best,
-                           f"the starts disagree: best latencies {min(best) / h:.2f}–{max(best) / h:.2f} ticks", at_best)
+    if len(best) > 1:
+        se = max(float(np.std(best, ddof=1) / np.sqrt(len(best))), se)
+    if max(best) - min(best) > SPREAD_TICKS * h:
+        return result(None, f"the starts disagree: best latencies {min(best) / h:.2f}–{max(best) / h:.2f} ticks")
     if min(at_config) <= MAX_STRAY:
-        return OnsetTiming(times, None, se, config_total, at_config, best,
-                           "the config's latency is consistent with the starts", at_best)
+        return result(None, "the config's latency is consistent with the starts")
     if any(c < EVIDENCE * b for c, b in zip(at_config, at_best, strict=True)):
-        return OnsetTiming(times, None, se, config_total, at_config, best,
-                           f"the config's latency is not far enough from the starts (the simulated arm strays less than "
-                           f"{EVIDENCE:g}× as far as at the best latency)", at_best)
-    return OnsetTiming(times, total, se, config_total, at_config, best,
-                       f"{len(ss)} start(s) from rest pin the total latency at {total / h:.2f} ticks ({1e3 * total:.2f} ms; "
-                       f"the config's {config_total / h:.2f} ticks leaves the simulated arm ≥ {min(at_config):.1f} counts "
-                       f"from the encoder's)", at_best)
+        return result(None, f"the config's latency is not far enough from the starts (the simulated arm strays less "
+                            f"than {EVIDENCE:g}× as far as at the best latency)")
+    return result(total, f"{len(ss)} start(s) from rest pin the total latency at {total / h:.2f} ticks "
+                         f"({1e3 * total:.2f} ms; the config's {config_total / h:.2f} ticks leaves the simulated arm "
+                         f"≥ {min(at_config):.1f} counts from the encoder's)")
