@@ -171,20 +171,21 @@ class CFirmware(Firmware):
         self._lib.host_rx(self._dev, bytes(data), len(data))
         self._sync()
 
-    def tick(self) -> None:
+    def tick(self, advance: bool = True) -> None:
         if self.streaming:  # the HAL's readings: the ADCs and encoder of the plant now
             raw = self.sim.sample()
             self._lib.host_tick(self._dev, raw.theta_adc, raw.theta_dot_adc, raw.phi_count, 0)
         else:
             self._lib.host_tick(self._dev, 0, 0, 0, 0)
         self._sync()
-        self._advance_plant()
+        if advance:
+            self.advance_plant()
 
     def skip(self, periods: int) -> None:
         if periods > 0:
             self._lib.host_skip(self._dev, periods)
             self._sync()
-            self._advance_plant()
+            self.advance_plant()
 
     def reboot(self) -> None:
         self.tx.clear()

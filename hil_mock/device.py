@@ -402,8 +402,9 @@ class VirtualDevice:
                     lateness = 0.0
                 self._read()
                 streaming = fw.streaming
-                fw.tick()
-                self._write(now)
+                fw.tick(advance=False)
+                self._write(now)  # the SAMPLE leaves at the tick, as the firmware's DMA sends it
+                fw.advance_plant()  # then the simulator's compute: not in the link's delay
                 if streaming:
                     timing.record(lateness, pc() - now)
                 if self.pacing == "realtime" or not fw.streaming or not self.connected:

@@ -317,7 +317,7 @@ class Firmware:
         self.sticky |= _TX_OVERFLOW
 
     # ----------------------------------------------------------------- time
-    def _advance_plant(self) -> None:
+    def advance_plant(self) -> None:
         """Run the plant up to the device clock with the current output."""
         if self.plant_start_ns is None:
             return
@@ -346,10 +346,12 @@ class Firmware:
         if periods > 0:
             self.clock_ns += periods * self.period_ns
             self.sticky |= _OVERRUN
-            self._advance_plant()
+            self.advance_plant()
 
-    def tick(self) -> None:
-        """One timer period (see the module docstring for the order of operations)."""
+    def tick(self, advance: bool = True) -> None:
+        """One timer period (see the module docstring for the order of operations). ``advance=False`` leaves
+        step 5's plant integration to the caller's ``advance_plant()``, so a device sends the SAMPLE first (as
+        the real firmware's DMA does) and the host does not see the simulator's compute time as link delay."""
         errors = self.decoder.errors
         if errors != self._rx_errors_seen:
             self._rx_errors_seen = errors
@@ -357,7 +359,8 @@ class Firmware:
         if self.streaming:
             self._streaming_tick()
         self.clock_ns += self.period_ns
-        self._advance_plant()
+        if advance:
+            self.advance_plant()
 
     def _streaming_tick(self) -> None:
         now = self.clock_ns

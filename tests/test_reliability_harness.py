@@ -198,6 +198,9 @@ const fs = require("fs");
 const { McapStreamReader } = require("@mcap/core");
 const zstd = require("@foxglove/wasm-zstd");
 const lz4 = require("@foxglove/wasm-lz4");
+// the result, then exit once it is written: the wasm modules may keep node's event loop alive (a CI run saw
+// the complete result printed and node still running 120 s later)
+const done = (text) => process.stdout.write(text + "\n", () => process.exit(0));
 (async () => {
   await zstd.isLoaded;
   await lz4.isLoaded;
@@ -237,8 +240,8 @@ NODE_SCRIPT = r"""
   } catch (e) {
     error = String(e && e.message ? e.message : e);
   }
-  console.log(JSON.stringify({ reader: "@mcap/core McapStreamReader", complete: reader.done(), error, topics,
-                               tick_records, max_log_time: last, bytes_left: reader.bytesRemaining() }));
+  done(JSON.stringify({ reader: "@mcap/core McapStreamReader", complete: reader.done(), error, topics,
+                        tick_records, max_log_time: last, bytes_left: reader.bytesRemaining() }));
 })().catch((e) => { console.error(String(e)); process.exit(3); });
 """
 
@@ -280,7 +283,7 @@ NODE_TIMES_SCRIPT = r"""
                      body.message === undefined ? null : body.message]);
     }
   }
-  console.log(JSON.stringify({ reader: "@mcap/core McapStreamReader", metadata, messages }));
+  done(JSON.stringify({ reader: "@mcap/core McapStreamReader", metadata, messages }));
 })().catch((e) => { console.error(String(e)); process.exit(3); });
 """
 

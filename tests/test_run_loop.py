@@ -330,6 +330,37 @@ def test_stale_samples_skip_whole_periods_without_commands(rig: RigConfig) -> No
     assert timing[403][F["overruns"]] == 1 and timing[399][F["overruns"]] == 0
 
 
+class _StallingController(Controller):
+    """The process stopped (SIGSTOP, starved) between read and write: ``update`` of one tick takes 30 ms."""
+
+    stall_at_t = 0.8
+
+    def update(self, m: Measurement) -> Any:
+        if abs(m.t - self.stall_at_t) < 1e-6:
+            time.sleep(0.030)
+        return super().update(m)
+
+
+def test_a_sample_aged_in_a_stall_at_the_write_gets_no_enable(rig: RigConfig) -> None:
+    """A stall after the read (the host stall test's SIGSTOP landing between read and write): the torque computed
+    from a SAMPLE 30 ms old (limit LoopSettings.stale_age_periods = 5 periods) is not sent; the device ticked on
+    meanwhile (its 15 SAMPLEs arrive together, 14 of them stale), and it all counts as one overrun of 15 skipped
+    periods; balancing goes on."""
+    stalled = round(_StallingController.stall_at_t * RATE)
+    dev = SimDevice(rig, bursts={stalled + 1: 15})
+    ctrl = Controller.from_rig(rig)
+    ctrl.__class__ = _StallingController  # the rig's controller, with the stall
+    loop, sink = make_loop(rig, dev, duration=2.0, controller=ctrl)
+    r = loop.run()
+    answered = [w[1] for w in dev.writes]
+    assert stalled - 1 in answered and stalled + 15 in answered
+    assert set(range(stalled, stalled + 15)).isdisjoint(answered), "no COMMAND from the SAMPLE that aged in the stall"
+    assert r.end == "duration" and r.skipped_periods == 15 and r.overruns == 1
+    timing = {rec[F["seq"]]: rec for rec in sink.ticks()}
+    assert timing[stalled][F["latency_us"]] == -1.0 and timing[stalled][F["update_us"]] > 30_000
+    assert timing[stalled + 15][F["overruns"]] == 1
+
+
 def test_repeated_overruns_trip(rig: RigConfig) -> None:
     bursts = {400 + 3 * k: 3 for k in range(6)}  # a stall before each of six commanded ticks in a row
     dev = SimDevice(rig, bursts=bursts)

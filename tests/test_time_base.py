@@ -56,17 +56,22 @@ def test_daemon_log_is_on_one_clock_that_agrees_with_the_device(tmp_path: Path) 
     dev_ns = np.array([m[5] for m in ticks]) * 1e9
     assert np.max(np.abs(np.array([m[1] for m in ticks]) - (dev_ns + offset))) < 1_000
     # the device's side: the recording mock's wall clock at each of its ticks (when it set the output for the
-    # coming period) against the log's time of that tick: the map is the SAMPLE's smallest delay at the start,
-    # so the log's time is at or after the device's and within a tick of it
+    # coming period) against the log's time of that tick. The map is the smallest SAMPLE delay of the first 0.25 s,
+    # so the log's time is the device's plus the link's least delay (~50 µs on a pty) less the spread of the mock's
+    # own wake-up lateness (tens of µs): within a quarter tick either way (before the map's window was 0.25 s it was
+    # the first batch, often one late tick at start-up: 1-2 ms off and over a tick on a loaded machine)
     tick_time = {m[4]: m[1] for m in ticks}
     t_of = {round(m[5] * 1e6): m[1] for m in ticks}  # device µs → log time
     diff = np.array([t_of[round(dev * 1e-3)] - wall for wall, dev, _ in rec.outputs[1:] if round(dev * 1e-3) in t_of])
     assert len(diff) > 0.8 * len(ticks)
-    assert 0 <= np.median(diff) < PERIOD_NS, f"log time − device wall time: median {np.median(diff) / 1e3:.0f} µs"
-    # events (host wall clock) sit on the same time line as the ticks they report
+    assert abs(np.median(diff)) < PERIOD_NS / 4, f"log time − device wall time: median {np.median(diff) / 1e3:.0f} µs"
+    # events (host wall clock) sit on the same time line as the ticks they report: a transition carries its
+    # SAMPLE's arrival, the tick its device time + the least delay; the two differ by that SAMPLE's extra delay
+    # (a loaded 2-core machine delays a read by up to ~2.5 ms at start-up) or a little the other way (a later
+    # SAMPLE may come quicker than the least of the first 0.25 s)
     armed = next(m for m in by_topic[ls.EVENTS_TOPIC] if "→ armed" in (m[6] or ""))
     seq = int(armed[6].rsplit("seq ", 1)[1].rstrip(")"))
-    assert 0 <= armed[1] - tick_time[seq] < PERIOD_NS, (armed[1] - tick_time[seq]) / 1e3
+    assert -PERIOD_NS / 4 <= armed[1] - tick_time[seq] < 2 * PERIOD_NS, (armed[1] - tick_time[seq]) / 1e3
     # the packed tick batch (decoded by @mcap/core's side from the log's own schema record) holds the same ticks at
     # the same times, and each batch message is stamped with its first tick's time
     batched = [m for m in msgs if m[0] == ls.TICK_BATCH_TOPIC]

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from furuta_rt.io import log_schema as ls
-from furuta_rt.runtime.records import TICK_RECORD, first_time_base, record_time_ns, tick_fields, timing_fields
+from furuta_rt.runtime.records import TICK_RECORD, TimeBase, record_time_ns, tick_fields, timing_fields
 
 DEFAULT_PORT = 8765
 MAX_LIVE_HZ = 250.0
@@ -60,7 +60,7 @@ class LiveView:
             for topic, schema in _CHANNELS
         }
         self.mode = "none"
-        self.offset: int | None = None
+        self.base = TimeBase()  # the log's time base, so live and logged times agree
         self.every = 1  # send every k-th tick (by device seq): set from the run's rate
 
     def handle(self, item: tuple) -> LiveView:
@@ -78,15 +78,16 @@ class LiveView:
         return self
 
     def ticks(self, batch: list[tuple]) -> None:
-        if self.offset is None:
-            self.offset = first_time_base(batch)[0]
+        batch = self.base.add(batch)
+        if not batch:
+            return
         tick_ch, joints_ch, timing_ch, comp_ch = (self.channels[t] for t in (
             ls.TICK_TOPIC, ls.JOINT_STATES_TOPIC, ls.TIMING_TOPIC, ls.COMPENSATION_TOPIC))
         want_tick, want_joints, want_timing = tick_ch.has_sinks(), joints_ch.has_sinks(), timing_ch.has_sinks()
         want_comp = self.mode == "adaptive" and comp_ch.has_sinks()
         if not (want_tick or want_joints or want_timing or want_comp):
             return
-        mode, offset, every = self.mode, self.offset, self.every
+        mode, offset, every = self.mode, self.base.offset_ns, self.every
         for rec in batch:
             if rec[_SEQ] % every:
                 continue

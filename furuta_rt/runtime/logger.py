@@ -33,7 +33,7 @@ from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
 from furuta_rt.io.mcap_log import LogWriter
 from furuta_rt.runtime.live import LiveView, start_live_view
-from furuta_rt.runtime.records import TICK_RECORD, first_time_base, tick_fields, timing_fields
+from furuta_rt.runtime.records import TICK_RECORD, TimeBase, tick_fields, timing_fields
 
 _DEV, _SEQ, _FC = (TICK_RECORD.index(name) for name in ("dev_ns", "seq", "fc_hat"))
 
@@ -62,7 +62,8 @@ class TickLog:
         self.writer: LogWriter | None = None
         self._early: list[tuple[int, str, str]] = []
         self.ticks = 0
-        self.device_offset_ns: int | None = None  # the time base: set at the first tick
+        self.device_offset_ns: int | None = None  # the time base: fixed over the first ticks (records.TimeBase)
+        self._base = TimeBase()
 
     def open(self, device: dict[str, str], run: dict[str, str] | None = None) -> None:
         """Create the file with its metadata (``run`` replaces the setup's, when given)."""
@@ -78,12 +79,13 @@ class TickLog:
     def write_ticks(self, batch: list[tuple]) -> None:
         w = self.writer
         assert w is not None
+        batch = self._base.add(batch)
         if not batch:
             return
         mode = self.mode
         if self.device_offset_ns is None:
-            self.device_offset_ns, base = first_time_base(batch)
-            w.time_base(base)
+            self.device_offset_ns = self._base.offset_ns
+            w.time_base(self._base.metadata)
         offset = self.device_offset_ns
         for rec in batch:
             ns = rec[_DEV] + offset
@@ -126,6 +128,7 @@ class TickLog:
             if Path(self.setup.path).exists():
                 return
             self.open({})
+        self.write_ticks(self._base.release())  # a run shorter than the time base's window
         self.writer.close()  # type: ignore[union-attr]
 
 

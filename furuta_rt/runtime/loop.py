@@ -71,6 +71,7 @@ class LoopSettings:
     snapshot_ticks: int = 50  # ticks per dashboard snapshot (≤ 10 Hz at 500 Hz)
     stats_after_s: float = 1.0  # std θ/φ/u exclude the first second of balancing
     idle_notice_s: float = 1.0  # still idle (never armed) after this long: one warning saying why
+    stale_age_periods: int = 5  # a SAMPLE this many periods old at the write (host stopped or starved) gets no torque
 
 
 @dataclass
@@ -208,13 +209,15 @@ class ControlLoop:
         except queue.Full:
             self.result.dropped_log_messages += len(batch)
 
-    def _transitions(self) -> None:
+    def _transitions(self, perf_ns: int | None = None) -> None:
+        """Log the supervisor's new transitions; those decided on a tick carry that SAMPLE's arrival (``perf_ns``),
+        so an event and the tick it reports sit together on the log's time line however late the loop ran."""
         tr = self.sup.transitions
         while self._n_sup_transitions < len(tr):
             t = tr[self._n_sup_transitions]
             self._n_sup_transitions += 1
             level = "ERROR" if t.new is State.TRIPPED and t.reason != TripReason.OPERATOR_STOP else "INFO"
-            self.event(level, f"{t.old.label} → {t.new.label}: {t.message} (seq {t.seq})")
+            self.event(level, f"{t.old.label} → {t.new.label}: {t.message} (seq {t.seq})", perf_ns)
 
     def _snapshot(self, now_ns: int, state: int, theta: float, phi: float, u: float, u_comp: float,
                   win_ticks: int, win_start: int, win_max_dev: float, fc_hat: float = 0.0) -> None:
@@ -299,6 +302,7 @@ class ControlLoop:
         comp = ctrl.compensator
         cal, tdo = self.cal, self.tdo
         nominal_us = 1e6 / st.rate_hz
+        stale_age_ns = round(st.stale_age_periods * 1e9 / st.rate_hz)
         loss_timeout = st.link_timeout_s
         target = None if st.duration is None else round(st.duration * st.rate_hz)
         stats_after = round(st.stats_after_s * st.rate_hz)
@@ -419,6 +423,12 @@ class ControlLoop:
                 u = u_lin = u_comp = 0.0
                 sat = False
             t3 = perf()
+            if not stale and t3 - est_ns > stale_age_ns and (state is _BALANCING or state is _SWINGING):
+                # the SAMPLE has aged periods (the process was stopped or starved between read and write): a torque
+                # computed from it is not sent; the period counts as skipped like a stale one
+                stale = True
+                r.skipped_periods += 1
+                skipped += 1
             if state is _TRIPPED or not stale:
                 if state is _BALANCING or state is _SWINGING:
                     hw.write(seq, counts(u), _ENABLE)
@@ -465,7 +475,7 @@ class ControlLoop:
                     r.trace.add(m.t, theta, phi)
             if log_on:
                 self._batch.append((
-                    self._wall0 + (t1 - self._perf0), dev_us * 1000, seq, dev_us * 1e-6,
+                    self._wall0 + ((arrival or t1) - self._perf0), dev_us * 1000, seq, dev_us * 1e-6,
                     s.theta_adc, s.theta_dot_adc, s.phi_count, status,
                     theta_dev, theta_dot, phi_dev, phd, u, u_lin, u_comp, sat, int(state), reset,
                     period_us, read_us, update_us, write_us, latency_us, lateness_us,
@@ -474,7 +484,7 @@ class ControlLoop:
                 if len(self._batch) >= batch_ticks:
                     self._flush_batch()
             if len(sup.transitions) != self._n_sup_transitions:
-                self._transitions()
+                self._transitions(arrival or t1)
             elif n == idle_notice and state is State.IDLE and not sup.transitions:
                 self.event("WARNING", f"not armed after {st.idle_notice_s:g} s: {sup.why_not_armed(theta, phi, status)}")
             if snap_ticks:

@@ -38,13 +38,41 @@ def timing_fields(rec: tuple) -> dict[str, Any]:
     return {k: rec[i] for k, i in _TIMING_KEYS}
 
 
-def first_time_base(batch: list[tuple]) -> tuple[int, dict[str, str]]:
-    """The device clock → wall clock offset fixed at the start of streaming (the handshake), from the first
-    batch (~0.1 s): its least delayed SAMPLE sets it, as furuta_rt.runtime.timing.DeviceClock does; and the
-    "time_base" metadata saying so."""
-    first = min(batch, key=lambda r: r[_WALL] - r[_DEV])
-    offset = first[_WALL] - first[_DEV]
-    return offset, device_time_base(first[_WALL], first[_DEV], "the least delayed SAMPLE of the first batch (0.1 s)")
+TIME_BASE_WINDOW_NS = 250_000_000
+"""Device time over which the time base's least delayed SAMPLE is sought (0.25 s: the first ticks arrive late while
+the daemon starts its logger; the loop hands over a batch early when an event is logged, so a batch is no window)."""
+
+
+class TimeBase:
+    """The device clock → wall clock offset, fixed once for a log: the least delayed SAMPLE (smallest host arrival −
+    device time, as furuta_rt.runtime.timing.DeviceClock tracks it) of the first TIME_BASE_WINDOW_NS of ticks. The
+    ticks of that window are held until it is full (or ``release`` at the end), then handed on with the offset."""
+
+    def __init__(self, window_ns: int = TIME_BASE_WINDOW_NS) -> None:
+        self.window_ns = window_ns
+        self.offset_ns: int | None = None
+        self.metadata: dict[str, str] = {}
+        self._held: list[tuple] = []
+
+    def add(self, batch: list[tuple]) -> list[tuple]:
+        """The records ready to be written: all of ``batch`` once the offset is fixed, else none (held)."""
+        if self.offset_ns is not None:
+            return batch
+        self._held.extend(batch)
+        if not self._held or self._held[-1][_DEV] - self._held[0][_DEV] < self.window_ns:
+            return []
+        return self.release()
+
+    def release(self) -> list[tuple]:
+        """Fix the offset from the ticks held so far (the run ends before the window is full) and hand them on."""
+        held, self._held = self._held, []
+        if self.offset_ns is None and held:
+            first = min(held, key=lambda r: r[_WALL] - r[_DEV])
+            self.offset_ns = first[_WALL] - first[_DEV]
+            span = (held[-1][_DEV] - held[0][_DEV]) * 1e-9
+            self.metadata = device_time_base(first[_WALL], first[_DEV],
+                                             f"the least delayed SAMPLE of the first {span:.2f} s of ticks")
+        return held
 
 
 def record_time_ns(rec: tuple, offset: int) -> int:
