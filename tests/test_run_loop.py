@@ -343,7 +343,7 @@ class _StallingController(Controller):
 
 def test_a_sample_aged_in_a_stall_at_the_write_gets_no_enable(rig: RigConfig) -> None:
     """A stall after the read (the host stall test's SIGSTOP landing between read and write): the torque computed
-    from a SAMPLE 30 ms old (limit LoopSettings.stale_age_periods = 5 periods) is not sent; the device ticked on
+    from a SAMPLE the host held 30 ms (limit LoopSettings.stale_age_periods = 5 periods) is not sent; the device ticked on
     meanwhile (its 15 SAMPLEs arrive together, 14 of them stale), and it all counts as one overrun of 15 skipped
     periods; balancing goes on."""
     stalled = round(_StallingController.stall_at_t * RATE)

@@ -248,16 +248,20 @@ class SerialHardware(HardwareInterface):
         return []
 
     def _await(self, kind: type, timeout: float) -> object | None:
+        """The first message of ``kind`` within ``timeout`` s; SAMPLEs that come with it or before it are queued
+        for ``read`` (the first SAMPLE often shares a read with the HELLO_ACK or STATUS: dropping it left a
+        device paced in lockstep waiting for its answer)."""
         end = time.monotonic() + timeout
-        while (left := end - time.monotonic()) > 0:
+        found = None
+        while found is None and (left := end - time.monotonic()) > 0:
             for msg in self._receive(left):
-                if isinstance(msg, kind):
-                    return msg
-                if isinstance(msg, Sample):
+                if found is None and isinstance(msg, kind):
+                    found = msg
+                elif isinstance(msg, Sample):
                     self._queue.append(msg)
                 elif isinstance(msg, Status):
                     self.status = msg
-        return None
+        return found
 
     def handshake(self, rate_hz: int, watchdog_ms: int) -> DeviceInfo:
         """HELLO/HELLO_ACK (version, schema hash, nonce) then CONFIG/STATUS. Raises UserError."""

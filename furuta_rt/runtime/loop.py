@@ -71,7 +71,7 @@ class LoopSettings:
     snapshot_ticks: int = 50  # ticks per dashboard snapshot (≤ 10 Hz at 500 Hz)
     stats_after_s: float = 1.0  # std θ/φ/u exclude the first second of balancing
     idle_notice_s: float = 1.0  # still idle (never armed) after this long: one warning saying why
-    stale_age_periods: int = 5  # a SAMPLE this many periods old at the write (host stopped or starved) gets no torque
+    stale_age_periods: int = 5  # a SAMPLE held this many periods by the host before the write gets no torque
 
 
 @dataclass
@@ -423,9 +423,10 @@ class ControlLoop:
                 u = u_lin = u_comp = 0.0
                 sat = False
             t3 = perf()
-            if not stale and t3 - est_ns > stale_age_ns and (state is _BALANCING or state is _SWINGING):
-                # the SAMPLE has aged periods (the process was stopped or starved between read and write): a torque
-                # computed from it is not sent; the period counts as skipped like a stale one
+            if not stale and t3 - (arrival or t1) > stale_age_ns and (state is _BALANCING or state is _SWINGING):
+                # the SAMPLE aged periods in the host (the process was stopped or starved between read and write): a
+                # torque computed from it is not sent; the period counts as skipped like a stale one. (Its age since
+                # the device's tick would not do: a mock paced in lockstep keeps no real-time clock.)
                 stale = True
                 r.skipped_periods += 1
                 skipped += 1
