@@ -6,9 +6,10 @@ Every message but /furuta/tick_batch is JSON with a JSON Schema (Foxglove plots 
 One time base: every message's ``log_time``, ``publish_time`` and schema ``timestamp`` are the same clock,
 the host's wall clock in ns since the Unix epoch, so Foxglove's log-time and header-time modes agree. A
 tick's time is its device time (the SAMPLE's µs timestamp, unwrapped) mapped onto the wall clock with the
-offset taken at the first SAMPLE after the handshake: ``time_ns = device_ns + device_offset_ns``, recorded
-in the "time_base" metadata (written when the first tick arrives). Events carry the host wall clock at the
-moment they happened. The tick's own ``t`` field stays device time in seconds (what replay uses).
+offset of the least delayed SAMPLE (host arrival − device time) of the first 0.25 s of ticks
+(furuta_rt.runtime.records.TimeBase): ``time_ns = device_ns + device_offset_ns``, recorded in the "time_base"
+metadata. Events carry the host wall clock at the moment they happened (a supervisor transition: the arrival
+of the SAMPLE it was decided on). The tick's own ``t`` field stays device time in seconds (what replay uses).
 Logs written before the time base (no "time_base" metadata) have publish_time and the JointStates stamp
 in device time since the start; readers use ``t`` and are unaffected.
 
