@@ -39,7 +39,7 @@ def test_compliant_coupling_names_at_most_the_rotor_inertia(runs):
     arm residual is well above its floor (a 10–80× low-frequency excess of the floor's spectrum); an effect moved out
     for not predicting better did not predict better. (Generated afresh, the recording leaves the arm `explained` once
     the inertia is in: the mode's remaining band excess, 3.6× the floor's at 0.5–1 Hz, has t = 4.65 against the
-    per-band test's 4.85 — the mode is not detected beyond the inertia there; see docs/DIAGNOSE.md.)"""
+    per-band test's 4.85 — the size tests do not see the mode beyond the inertia; its signature does, below.)"""
     case, _, js = runs["coupling"]
     assert all(suite.rotor_inertia_seen(case, e) for e in js["effects"]), js["effects"]
     arm = js["equations"][ARM]
@@ -50,6 +50,20 @@ def test_compliant_coupling_names_at_most_the_rotor_inertia(runs):
     for m in js["not_predictive"]:
         assert "band" in m or m["prediction"]["paired_t"] > -verify.T_DIFFERENT, m
     assert not suite.outside_score(case, js)["false_effects"]
+
+
+def test_compliant_coupling_is_not_explained_its_signature_is_named(runs):
+    """After the rotor inertia the arm's remainder follows the compliance's own column, −τ̈_command (the rotor turns by
+    τ_c/k more than the arm), with J_m/k = 0.001/2.5 = 4·10⁻⁴ s² (its mode with the arm held at 8.0 Hz): the arm is
+    `partly_explained`, that compliance its first possible cause. A true input gain (no spring) is `explained`."""
+    case, _, js = runs["coupling"]
+    arm = js["equations"][ARM]
+    assert arm["verdict"] in ("partly_explained", "unexplained"), arm
+    first = arm["unexplained"]["possible_causes"][0]
+    assert first["key"] == "compliance" and first["coefficient"] > 4 * first["se"], first
+    assert 0.5 < first["coefficient"] / (0.001 / 2.5) < 2.0, first
+    assert suite.outside_score(case, js)["verdict_right"]
+    assert runs["gain"][2]["equations"][ARM]["verdict"] == "explained"
 
 
 def test_the_band_test_moves_stand_ins_for_the_coupling(runs):

@@ -238,7 +238,7 @@ def outside_cases() -> list[Case]:
 
 
 OUTSIDE_CAUSE = {"plant.Jp": "Jp", "plant.l": "l", "sensors.theta_scale": "theta_scale",  # rig change → cause key
-                 "coupling.stiffness": "mode"}
+                 "coupling.stiffness": "mode", "coupling.rotor_inertia": "compliance"}
 
 
 def outside_score(case: Case, diagnosis_json: dict) -> dict:

@@ -26,10 +26,11 @@ omnibus size test can.
 For a remainder, where it sits (times, regions, the signals it follows, its frequency band) and what outside the
 library could produce it: the remaining residuals of both equations are regressed, jointly, on the sensitivity of
 FurutaPlant.inverse_dynamics to each plant parameter of the rig config, to a θ sensor scale and to the sign of
-each angle (possible causes for the person to check in the rig config; never effects), first among them "an
-unmodelled compliance or mode" when the gate's band test found effects of the equation whose fitted values depend on
-the frequency band (``mode_cause``; furuta_rt.diagnose.gate.band_check); the remainder's spectrum
-against the data's (``signature``) says in which band it sits (a narrow peak the data does not have points to an
+each angle, and (arm) to a compliant motor–arm coupling's own column, −τ̈_command (``compliance_column``: beyond the
+rotor's inertia, which is a library effect) — possible causes for the person to check in the rig; never effects —,
+first among them "an unmodelled compliance or mode" when the gate's band test found effects of the equation whose
+fitted values depend on the frequency band (``mode_cause``; furuta_rt.diagnose.gate.band_check); the remainder's
+spectrum against the data's (``signature``) says in which band it sits (a narrow peak the data does not have points to an
 unmodelled compliance or mode).
 """
 
@@ -401,7 +402,28 @@ def cause_columns(ctx: Context, equations: list[str]) -> list[tuple[str, str, Co
     for key, name, kw in (("theta_sign", "sign of θ", {"theta_sign": -1.0}), ("phi_sign", "sign of φ", {"phi_sign": -1.0})):
         flip = {eq: _id_pair(ctx, st[eq], plant, eq, **kw) - base[eq] for eq in equations}
         out.append((key, name, lambda a, flip=flip: flip))
+    if ARM in equations:
+        column = compliance_column(ctx)
+        comp = {eq: column if eq == ARM else np.zeros_like(column) for eq in equations}
+        out.append(("compliance", COMPLIANCE, lambda a, comp=comp: comp))
     return out
+
+
+COMPLIANCE = "an unmodelled compliance between the motor and the arm"
+
+
+def compliance_column(ctx: Context) -> np.ndarray:
+    """The arm residual's column of a compliant motor–arm coupling (a belt, a flexible shaft coupling): the rotor
+    (inertia J_m) turns by φ_m = φ + τ_c/k, where τ_c is the torque the spring k passes to the arm, so the command
+    also drives J_m·φ̈_m = J_m·φ̈ + (J_m/k)·τ̈_c. The first term is an arm inertia (a library effect, seen below the
+    mode); the second is not: with τ_c ≈ τ_command (to first order in J_m/J), the residual ID − τ_command holds
+    a·(−τ̈_command) with a = J_m/k = 1/ω_m² > 0, ω_m the rotor's mode on the spring with the arm held. The command
+    is measured exactly (no sensor noise shares the residual's), seen through the arm kernel like every column."""
+    key = "compliance column"
+    if key not in ctx._columns:
+        dt = ctx.prep.dt
+        ctx._columns[key] = -np.gradient(np.gradient(ctx.command_torque(ctx.base_path), dt), dt)
+    return ctx._columns[key]
 
 
 def possible_causes(ctx: Context, remaining: dict[str, Remaining], detect: dict | None = None) -> list[dict]:
@@ -433,12 +455,12 @@ def possible_causes(ctx: Context, remaining: dict[str, Remaining], detect: dict 
             if sxx.sum() <= 0 or not np.isfinite(sxx.sum()):
                 break
             a = float(sxy.sum() / sxx.sum())
-            if key.endswith("_sign") or not -0.9 < a < 0.9:
+            if key.endswith("_sign") or key == "compliance" or not -0.9 < a < 0.9:
                 break
         if sxx.sum() <= 0 or not np.isfinite(a):
             continue
         se = max(_block_se(sxy, sxx, a), _null_spread(remaining, cols))
-        if detect is not None and not key.endswith("_sign"):
+        if detect is not None and not key.endswith("_sign") and key != "compliance":
             weight = {eq: float(cols[eq][remaining[eq][1]] @ cols[eq][remaining[eq][1]]) / max(remaining[eq][2], 1e-300)
                       for eq in eqs}
             total = sum(weight.values()) or 1.0
@@ -464,6 +486,9 @@ def possible_causes(ctx: Context, remaining: dict[str, Remaining], detect: dict 
                     "removes_total_where_it_acts": local})
     # a sign is reversed (coefficient −1) or it is not: a partial fit of a sign column is no cause
     out = [c for c in out if c["key"] not in ("theta_sign", "phi_sign") or abs(c["coefficient"] + 1) <= 0.3]
+    # a spring's J_m/k is positive; the other sign is a lag of the actuator (or the sensor noise fed back through the
+    # loop: −1 to −7·10⁻⁴ s² on the simulator's sine-excited null cases), no compliance
+    out = [c for c in out if c["key"] != "compliance" or c["coefficient"] > 0]
     out.sort(key=lambda c: -c["removes_total"])
     for c in out:  # causes that fit (almost) as well as the first are look-alikes the data cannot tell apart
         c["indistinguishable_from_first"] = bool(c["removes_total"] >= out[0]["removes_total"] - LOOKALIKE_MARGIN)
@@ -516,6 +541,9 @@ def _cause_value(ctx: Context, key: str, a: float, se: float) -> str:
     if key in ("theta_sign", "phi_sign"):
         angle = "θ" if key == "theta_sign" else "φ"
         return f"{angle} appears reversed relative to the rig (coefficient {a:+.2f} ± {se:.2f}; −1: reversed)"
+    if key == "compliance":  # a = J_m/k = 1/ω_m²
+        mode = f"with its mode near {1 / (2 * np.pi * np.sqrt(a)):.1f} Hz " if a > 0 else ""
+        return f"a rotor-side inertia on a spring {mode}(J_m/k = {a:.2g} ± {se:.2g} s²)"
     if key == "theta_scale":  # the θ read is s × the true θ: y ≈ (1 − 1/s)·∂ID/∂s
         s = 1.0 / (1.0 - a) if a < 1 else float("inf")
         return f"θ reads {s:.3f} × the true angle (± {se:.2g})"
