@@ -410,6 +410,9 @@ def cause_columns(ctx: Context, equations: list[str]) -> list[tuple[str, str, Co
 
 
 COMPLIANCE = "an unmodelled compliance between the motor and the arm"
+FIXED_COLUMN_CAUSES = ("theta_sign", "phi_sign", "compliance")
+"""Causes whose column does not depend on the coefficient (no secant refit) and that are no change of a rig
+parameter (no smallest detectable change)."""
 
 
 def compliance_column(ctx: Context) -> np.ndarray:
@@ -455,12 +458,12 @@ def possible_causes(ctx: Context, remaining: dict[str, Remaining], detect: dict 
             if sxx.sum() <= 0 or not np.isfinite(sxx.sum()):
                 break
             a = float(sxy.sum() / sxx.sum())
-            if key.endswith("_sign") or key == "compliance" or not -0.9 < a < 0.9:
+            if key in FIXED_COLUMN_CAUSES or not -0.9 < a < 0.9:
                 break
         if sxx.sum() <= 0 or not np.isfinite(a):
             continue
         se = max(_block_se(sxy, sxx, a), _null_spread(remaining, cols))
-        if detect is not None and not key.endswith("_sign") and key != "compliance":
+        if detect is not None and key not in FIXED_COLUMN_CAUSES:
             weight = {eq: float(cols[eq][remaining[eq][1]] @ cols[eq][remaining[eq][1]]) / max(remaining[eq][2], 1e-300)
                       for eq in eqs}
             total = sum(weight.values()) or 1.0

@@ -62,8 +62,7 @@ class TickLog:
         self.writer: LogWriter | None = None
         self._early: list[tuple[int, str, str]] = []
         self.ticks = 0
-        self.device_offset_ns: int | None = None  # the time base: fixed over the first ticks (records.TimeBase)
-        self._base = TimeBase()
+        self._base = TimeBase()  # the device clock → wall clock map, fixed over the first ticks
 
     def open(self, device: dict[str, str], run: dict[str, str] | None = None) -> None:
         """Create the file with its metadata (``run`` replaces the setup's, when given)."""
@@ -79,14 +78,14 @@ class TickLog:
     def write_ticks(self, batch: list[tuple]) -> None:
         w = self.writer
         assert w is not None
+        mapped = self._base.offset_ns is not None
         batch = self._base.add(batch)
         if not batch:
             return
         mode = self.mode
-        if self.device_offset_ns is None:
-            self.device_offset_ns = self._base.offset_ns
+        if not mapped:  # the window just closed: its map goes into the log once
             w.time_base(self._base.metadata)
-        offset = self.device_offset_ns
+        offset = self._base.offset_ns
         for rec in batch:
             ns = rec[_DEV] + offset
             w.tick(ns, tick_fields(rec, mode), timing_fields(rec))

@@ -347,6 +347,7 @@ class ControlLoop:
             timeout = loss_timeout
             seq = s.seq
             arrival = hw.arrival_ns
+            seen = arrival or t1  # the SAMPLE's host time (a device that does not stamp arrivals: the read's end)
             read_us = (t1 - arrival if arrival >= t0 else t1 - t0) * 1e-3
             dev_us = clock.unwrap(s.t_us)
             est_ns = clock.observe(dev_us, arrival)
@@ -423,7 +424,8 @@ class ControlLoop:
                 u = u_lin = u_comp = 0.0
                 sat = False
             t3 = perf()
-            if not stale and t3 - (arrival or t1) > stale_age_ns and (state is _BALANCING or state is _SWINGING):
+            acting = state is _BALANCING or state is _SWINGING  # the actuator is ours this period
+            if not stale and acting and t3 - seen > stale_age_ns:
                 # the SAMPLE aged periods in the host (the process was stopped or starved between read and write): a
                 # torque computed from it is not sent; the period counts as skipped like a stale one. (Its age since
                 # the device's tick would not do: a mock paced in lockstep keeps no real-time clock.)
@@ -431,7 +433,7 @@ class ControlLoop:
                 r.skipped_periods += 1
                 skipped += 1
             if state is _TRIPPED or not stale:
-                if state is _BALANCING or state is _SWINGING:
+                if acting:
                     hw.write(seq, counts(u), _ENABLE)
                 else:  # zero; clear a latched fault while waiting to arm
                     hw.write(seq, 0, _CLEAR_FAULT if (status & _FAULT_MASK and state is State.IDLE) else 0)
@@ -441,7 +443,7 @@ class ControlLoop:
             else:
                 t4 = t3
                 latency_us = -1.0
-            prev_balancing = state is _BALANCING or state is _SWINGING  # the actuator was ours
+            prev_balancing = acting  # the actuator was ours
             wrote_prev = not stale
             # ---- accounting (after the command is out)
             update_us = (t3 - t2) * 1e-3
@@ -476,7 +478,7 @@ class ControlLoop:
                     r.trace.add(m.t, theta, phi)
             if log_on:
                 self._batch.append((
-                    self._wall0 + ((arrival or t1) - self._perf0), dev_us * 1000, seq, dev_us * 1e-6,
+                    self._wall0 + (seen - self._perf0), dev_us * 1000, seq, dev_us * 1e-6,
                     s.theta_adc, s.theta_dot_adc, s.phi_count, status,
                     theta_dev, theta_dot, phi_dev, phd, u, u_lin, u_comp, sat, int(state), reset,
                     period_us, read_us, update_us, write_us, latency_us, lateness_us,
@@ -485,7 +487,7 @@ class ControlLoop:
                 if len(self._batch) >= batch_ticks:
                     self._flush_batch()
             if len(sup.transitions) != self._n_sup_transitions:
-                self._transitions(arrival or t1)
+                self._transitions(seen)
             elif n == idle_notice and state is State.IDLE and not sup.transitions:
                 self.event("WARNING", f"not armed after {st.idle_notice_s:g} s: {sup.why_not_armed(theta, phi, status)}")
             if snap_ticks:
