@@ -23,6 +23,7 @@ from furuta_rt.io.mcap_read import read_log
 from furuta_rt.replay.core import replay_log
 from furuta_rt.runtime.channel import Channel, Flag
 from furuta_rt.runtime.logger import LogSetup, TickLog, logger_process
+from furuta_rt.runtime.records import TICK_RECORD, TIME_BASE_WINDOW_NS, TimeBase
 
 
 @pytest.fixture
@@ -126,6 +127,42 @@ def test_a_killed_run_is_readable_up_to_its_last_flush(tmp_path: Path, rig: RigC
     recovered = read_log(torn)
     assert recovered.recovered and recovered.n_ticks == n
     log.close()
+
+
+def _record(wall_ns: int, dev_ns: int) -> tuple:
+    rec = [0] * len(TICK_RECORD)
+    rec[TICK_RECORD.index("wall_ns")], rec[TICK_RECORD.index("dev_ns")] = wall_ns, dev_ns
+    return tuple(rec)
+
+
+def test_the_time_base_is_the_least_delayed_sample_of_its_window_not_of_a_first_batch() -> None:
+    """The loop hands a batch over early when it logs an event, so the first batch can be the first tick alone —
+    the one that arrives late while the daemon starts. The map waits for 0.25 s of ticks and takes their least
+    delayed SAMPLE; ticks are held until then and handed on in order, later batches pass straight through."""
+    period, wall0 = 2_000_000, 1_700_000_000_000_000_000
+    delay = [2_200_000] + [150_000] * 40 + [40_000] + [120_000] * 200  # ns from the device tick to its arrival
+    recs = [_record(wall0 + k * period + d, k * period) for k, d in enumerate(delay)]
+    base = TimeBase()
+    assert base.add(recs[:1]) == [] and base.offset_ns is None  # the late first tick alone decides nothing
+    out, k = [], 1
+    while base.offset_ns is None:
+        out += base.add(recs[k : k + 50])
+        k += 50
+    assert out == recs[:k] and recs[k - 1][TICK_RECORD.index("dev_ns")] >= TIME_BASE_WINDOW_NS
+    assert base.offset_ns == wall0 + 40_000  # the least delay (tick 41), not the first tick's 2.2 ms
+    assert base.metadata["device_offset_ns"] == str(base.offset_ns)
+    assert base.add(recs[k:]) == recs[k:] and base.offset_ns == wall0 + 40_000  # fixed once
+
+
+def test_a_run_shorter_than_the_time_base_window_keeps_every_tick(tmp_path: Path, rig: RigConfig) -> None:
+    """0.1 s of ticks (under the time base's 0.25 s window): the ticks held for the map are written at close, on
+    the map of the ticks there were."""
+    items, n = loop_items(rig, 0.1)
+    path = tmp_path / "run.mcap"
+    write_log(path, rig, items)
+    log = read_log(path)
+    assert log.n_ticks == n == 50 and log.device_offset_ns is not None
+    assert log.tick_log_time.tolist() == [round(t * 1e9) + log.device_offset_ns for t in log.ticks["t"]]
 
 
 def test_logger_process_through_a_spawn_queue(tmp_path: Path, rig: RigConfig) -> None:

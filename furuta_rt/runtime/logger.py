@@ -75,11 +75,15 @@ class TickLog:
         self._early.clear()
         self.writer.flush()
 
-    def write_ticks(self, batch: list[tuple]) -> None:
+    def write_ticks(self, batch: list[tuple], last: bool = False) -> None:
+        """Write ``batch`` once the time base is fixed (held until then); ``last``: the run ends, and the ticks still
+        held are written on the map of those there are."""
         w = self.writer
         assert w is not None
         mapped = self._base.offset_ns is not None
         batch = self._base.add(batch)
+        if last:
+            batch = batch + self._base.release()
         if not batch:
             return
         mode = self.mode
@@ -127,7 +131,7 @@ class TickLog:
             if Path(self.setup.path).exists():
                 return
             self.open({})
-        self.write_ticks(self._base.release())  # a run shorter than the time base's window
+        self.write_ticks([], last=True)  # a run shorter than the time base's window
         self.writer.close()  # type: ignore[union-attr]
 
 
