@@ -472,13 +472,17 @@ def test_usb_latency_timer_above_1ms_is_reported_with_the_fix(tmp_path: Path) ->
 
 
 class ScriptedDaq:
-    """A device on a raw pty that answers HELLO with ``ack`` (fields overridden) and CONFIG with ``status``."""
+    """A device on a raw pty that answers HELLO with ``ack`` (fields overridden) and CONFIG with ``status``;
+    ``slow_first_hello``: it answers the first HELLO 150 ms late (the host has retried meanwhile) and streams two
+    SAMPLEs, then the retried HELLO restarts the session (PROTOCOL.md §5) and it streams again from seq 0 at 50 ms."""
 
-    def __init__(self, ack: dict[str, Any], status_flags: int = 0, status_rate: int | None = None) -> None:
+    def __init__(self, ack: dict[str, Any], status_flags: int = 0, status_rate: int | None = None,
+                 slow_first_hello: bool = False) -> None:
         from hil_mock.ptyport import open_raw_pty
 
         self.fd, self.port = open_raw_pty()
         self.ack, self.status_flags, self.status_rate = ack, status_flags, status_rate
+        self.slow_first_hello = slow_first_hello
         self.received: list[Any] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, daemon=True)
@@ -502,7 +506,15 @@ class ScriptedDaq:
                                 theta_rad_per_count=1e-4, theta_offset_counts=0, theta_dot_rad_s_per_count=1e-3,
                                 theta_dot_offset_counts=0, phi_counts_per_rev=4096, actuator_full_scale=2.0,
                                 actuator_kind=0)
+                    hellos = sum(isinstance(m, fp.Hello) for m in self.received)
+                    if self.slow_first_hello and hellos == 1:
+                        time.sleep(0.15)
                     os.write(self.fd, fp.encode(fp.HelloAck(**{**base, **self.ack})))
+                    if self.slow_first_hello:
+                        time.sleep(0.01)
+                        t0_us = 0 if hellos == 1 else 50_000
+                        for seq in range(2 if hellos == 1 else 1):
+                            os.write(self.fd, fp.encode(fp.Sample(seq, t0_us + 2000 * seq, 0, 0, 0, 0)))
                 elif isinstance(msg, fp.Config):
                     rate = msg.rate_hz if self.status_rate is None else self.status_rate
                     os.write(self.fd, fp.encode(fp.Status(self.status_flags, rate, msg.watchdog_ms, 0, 0, 1, 0)))
@@ -548,6 +560,24 @@ def test_handshake_configures_rate_and_watchdog_and_reads_the_calibration() -> N
     assert cal.theta_rad_per_count == pytest.approx(1e-4, rel=1e-7)  # binary32 on the wire
     meta = info.metadata()
     assert meta["device_id"] == "0x00000007" and meta["applied_rate_hz"] == "500"
+
+
+def test_a_retried_hello_answered_twice_follows_the_session_the_device_streams() -> None:
+    """The device answers the first HELLO after the host's 100 ms retry: both HELLOs are answered and the second
+    restarts the session at seq 0. The host takes the second ACK's session: its first tick is the restarted stream's
+    seq 0, not a SAMPLE of the replaced session (whose seq 0 → 0 would trip as a device reset, as a slow qemu boot
+    did in CI)."""
+    daq = ScriptedDaq({}, slow_first_hello=True)
+    hw = SerialHardware(daq.port)
+    try:
+        info = hw.handshake(500, 20)
+        first = hw.read(0.5)
+    finally:
+        hw.close()
+        daq.close()
+    hellos = [m for m in daq.received if isinstance(m, fp.Hello)]
+    assert len(hellos) >= 2 and info.ack.nonce == hellos[-1].nonce
+    assert first is not None and (first.seq, first.t_us) == (0, 50_000)
 
 
 def test_missing_device_is_a_one_line_user_error() -> None:

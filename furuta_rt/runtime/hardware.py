@@ -262,6 +262,18 @@ class SerialHardware(HardwareInterface):
                     self.status = msg
         return None
 
+    def _last_session(self, ack: HelloAck, latest: int) -> HelloAck:
+        """The HELLO_ACK of the session the device ends up streaming. An ACK that answers an earlier HELLO (a device
+        slow to answer the first) may be followed by the answer to a later one, and every HELLO restarts the session
+        at seq 0 (PROTOCOL.md §5): wait one retry period for it, and drop the SAMPLEs of the session it replaced."""
+        while ack.nonce != latest:
+            later = self._await(HelloAck, self.HANDSHAKE_RETRY_S)
+            if later is None:  # the later HELLO never reached the device
+                break
+            self._queue.clear()
+            ack = later  # type: ignore[assignment]
+        return ack
+
     def handshake(self, rate_hz: int, watchdog_ms: int) -> DeviceInfo:
         """HELLO/HELLO_ACK (version, schema hash, nonce) then CONFIG/STATUS. Raises UserError."""
         if self._ser is None:
@@ -286,6 +298,7 @@ class SerialHardware(HardwareInterface):
             self._send(encode(hello))
             ack = self._await(HelloAck, self.HANDSHAKE_RETRY_S)
             if ack is not None:
+                ack = self._last_session(ack, hello.nonce)
                 hello = hellos.get(ack.nonce, hello)  # type: ignore[attr-defined]  # answers an earlier HELLO
                 break
         if ack is None:
