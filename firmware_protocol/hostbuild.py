@@ -1,8 +1,9 @@
 """The DAQ firmware core (firmware/core, firmware/host) built for this machine as a shared library.
 
 hil_mock loads it to run the C firmware as its device logic (``hil-mock --firmware c``). The library is
-built once per source/compiler combination with the system C compiler and cached outside the source
-tree: in ``$FURUTA_RT_BUILD_DIR``, else ``$XDG_CACHE_HOME/furuta-rt`` (default ``~/.cache/furuta-rt``).
+built once per source/compiler combination with the system C compiler and cached in ``$FURUTA_RT_BUILD_DIR``,
+else in the clone's ``build/`` (a source checkout), else in ``$XDG_CACHE_HOME/furuta-rt`` (an installed package):
+a build never writes into another clone's folder.
 """
 
 from __future__ import annotations
@@ -30,10 +31,13 @@ class BuildError(RuntimeError):
 
 
 def build_dir() -> Path:
-    """Where built firmware libraries are cached (outside the source tree)."""
+    """Where firmware builds go: ``$FURUTA_RT_BUILD_DIR``, the clone's ``build/``, or the user's cache."""
     explicit = os.environ.get("FURUTA_RT_BUILD_DIR")
     if explicit:
         return Path(explicit)
+    checkout = PACKAGE_DIR.parent
+    if (checkout / "pyproject.toml").is_file() and os.access(checkout, os.W_OK):
+        return checkout / "build"
     cache = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(cache) / "furuta-rt"
 

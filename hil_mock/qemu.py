@@ -9,10 +9,13 @@ path: ``furuta-rt run --port PTY`` then talks to the same C that runs on the boa
 
 from __future__ import annotations
 
+import hashlib
+import os
 import re
 import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -71,20 +74,31 @@ static const float PLANT_X0[6] = {{{_floats(x0)}}};
 
 
 def build_image(rig: RigConfig) -> Path:
-    """Cross-compile the qemu image for ``rig`` into the build directory; returns the ELF."""
+    """Cross-compile the qemu image for ``rig`` into the build directory; returns the ELF.
+
+    Each build works in a private folder and moves its ELF into place atomically, named by what it was built from:
+    concurrent builds (two test workers, two runs) never read each other's half-written files.
+    """
     if rig.actuator.kind != "torque":  # the image reports a torque actuator
         raise ValueError("the qemu image models a torque-driven rig")
+    header = plant_header(rig)
     out = build_dir() / "qemu"
     out.mkdir(parents=True, exist_ok=True)
-    (out / "qemu_plant.h").write_text(plant_header(rig))
-    elf = out / "furuta_fw_qemu.elf"
-    cmd = ["arm-none-eabi-gcc", *REQUIRED_FLAGS, *ARM_FLAGS, "-Os", "-ffunction-sections", "-fdata-sections",
-           f"-I{out}", f"-I{CORE_DIR}", f"-I{CODEC_DIR}", f"-I{BOARD_DIR}", *map(str, SOURCES),
-           "--specs=picolibc.specs", "-nostartfiles", "-T", str(BOARD_DIR / "stm32f401.ld"), "-Wl,--gc-sections",
-           "-o", str(elf)]
-    res = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
-    if res.returncode != 0:
-        raise RuntimeError(f"cross-compiling the qemu image failed:\n{res.stderr}")
+    key = hashlib.sha256(header.encode() + b"".join(p.read_bytes() for p in SOURCES)).hexdigest()[:16]
+    elf = out / f"furuta_fw_qemu-{key}.elf"
+    if elf.exists():
+        return elf
+    with tempfile.TemporaryDirectory(dir=out, prefix=".build-") as work:
+        (Path(work) / "qemu_plant.h").write_text(header)
+        tmp = Path(work) / elf.name
+        cmd = ["arm-none-eabi-gcc", *REQUIRED_FLAGS, *ARM_FLAGS, "-Os", "-ffunction-sections", "-fdata-sections",
+               f"-I{work}", f"-I{CORE_DIR}", f"-I{CODEC_DIR}", f"-I{BOARD_DIR}", *map(str, SOURCES),
+               "--specs=picolibc.specs", "-nostartfiles", "-T", str(BOARD_DIR / "stm32f401.ld"), "-Wl,--gc-sections",
+               "-o", str(tmp)]
+        res = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
+        if res.returncode != 0:
+            raise RuntimeError(f"cross-compiling the qemu image failed:\n{res.stderr}")
+        os.replace(tmp, elf)
     return elf
 
 
