@@ -11,7 +11,10 @@ code 2 — never a traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import os
+import signal
 import sys
 
 from furuta_rt.errors import UserError
@@ -32,24 +35,43 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    command = "furuta-rt"
     try:
+        parser = build_parser()  # imports every command module: Ctrl-C here is an interrupt, not a traceback
+        args = parser.parse_args(argv)
+        command = f"furuta-rt {args.command}"
         return int(args.func(args) or 0)
     except UserError as err:
-        print(f"furuta-rt {args.command}: error: {err}", file=sys.stderr)
+        print(f"{command}: error: {err}", file=sys.stderr)
         return err.exit_code
+    except BrokenPipeError:  # the reader of our output went away (``| head``): nothing more to say to it
+        _silence_stdout()
+        return 0
     except OSError as err:
         # A file or device the user named cannot be used: say which and why, in one line.
         target = f": {err.filename}" if err.filename else ""
         reason = (err.strerror or str(err)).lower()
-        print(f"furuta-rt {args.command}: error: {reason}{target} (check the path and its permissions)", file=sys.stderr)
+        print(f"{command}: error: {reason}{target} (check the path and its permissions)", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"furuta-rt {args.command}: interrupted", file=sys.stderr)
-        return 130
-    except BrokenPipeError:
-        return 0
+    except KeyboardInterrupt as err:  # a stop signal before the command could handle it (start-up)
+        name = err.args[0] if err.args and isinstance(err.args[0], str) else "SIGINT"
+        with contextlib.suppress(OSError):
+            print(f"{command}: interrupted ({name})", file=sys.stderr)
+        return int(getattr(err, "exit_code", 130))
+    finally:
+        if argv is None:  # the process's own command line: a late Ctrl-C must not interrupt the interpreter's exit
+            _ignore_stop_signals()
+
+
+def _silence_stdout() -> None:
+    """Later writes to a closed stdout (the interpreter flushes it at exit) must not print a traceback."""
+    with contextlib.suppress(OSError, ValueError):
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
+def _ignore_stop_signals() -> None:
+    for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT"):
+        signal.signal(getattr(signal, name), signal.SIG_IGN)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -4,11 +4,11 @@
     furuta-rt run --port /dev/ttyACM0 --log run.mcap   the rig
     furuta-rt run --mock --swing-up                    calibrate hanging, swing up, catch and balance
 
-Exit codes: 0 duration reached or operator stop (SIGINT/SIGTERM: u = 0 sent, log closed, summary
-printed) after the pendulum balanced; 1 the safety supervisor tripped (reason printed); 2 user error
-(one line, no traceback); 3 the run ended but its log is incomplete (disk full, ...); 4 the run ended
-without ever balancing (the pendulum never came within the arming window); 130 interrupted during
-start-up.
+Exit codes: 0 duration reached or operator stop (SIGINT, SIGQUIT, SIGTERM, SIGHUP: u = 0 and STOP sent
+first, log closed, summary printed); 1 the safety supervisor tripped (reason printed); 2 user error (one
+line, no traceback); 3 the run ended but its log is incomplete (disk full, ...); 4 the run ended without
+ever balancing (not after an operator stop); 128 + the signal's number (129 SIGHUP, 130 SIGINT, 131
+SIGQUIT, 143 SIGTERM) interrupted during start-up. A later output that fails does not change the code.
 """
 
 from __future__ import annotations

@@ -13,10 +13,11 @@ Process layout (multiprocessing 'spawn': children start from a clean interpreter
 Start-up order matters: the device handshake comes last, right before the first tick, because the
 pendulum (real or simulated) starts moving when the device starts streaming.
 
-Exit codes: 0 the duration was reached or the operator stopped the run (SIGINT/SIGTERM), with u = 0
-sent and the log closed, and the pendulum balanced; 1 the supervisor tripped (reason printed); 2 user
-error (one line); 3 the run ended but the log it was asked for is incomplete (the logger could not
-write: disk full, ...); 4 the run ended without ever balancing (a script must not take it for success).
+Exit codes: 0 the duration was reached or the operator stopped the run (any of signals.STOP_SIGNALS),
+with u = 0 and STOP sent first, the log closed and the summary written; 1 the supervisor tripped (reason
+printed); 2 user error (one line); 3 the run ended but the log it was asked for is incomplete (the logger
+could not write: disk full, ...); 4 the run ended without ever balancing and was not stopped by the
+operator (a script must not take it for success); 128 + signum: interrupted during start-up.
 """
 
 from __future__ import annotations
@@ -27,10 +28,10 @@ import dataclasses
 import json
 import multiprocessing
 import os
-import signal
 import socket
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,6 +41,7 @@ from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
 from furuta_rt.io.mcap_log import run_metadata
 from furuta_rt.io.output import probe_writable, write_text
+from furuta_rt.runtime import signals as stop_signals
 from furuta_rt.runtime.channel import Channel, Flag
 from furuta_rt.runtime.hardware import DeviceInfo, SerialHardware
 from furuta_rt.runtime.logger import LogSetup, logger_process
@@ -48,7 +50,7 @@ from furuta_rt.runtime.summary import format_summary, mock_injections, summary_d
 
 LOG_QUEUE_BATCHES = 200  # 20 s of ticks at 10 batches/s before the loop starts dropping
 CHILD_START_TIMEOUT_S = 60.0
-EXIT_OK, EXIT_TRIPPED, EXIT_LOG_INCOMPLETE, EXIT_NEVER_BALANCED = 0, 1, 3, 4
+EXIT_OK, EXIT_TRIPPED, EXIT_USER_ERROR, EXIT_LOG_INCOMPLETE, EXIT_NEVER_BALANCED = 0, 1, 2, 3, 4
 
 
 @dataclass
@@ -155,8 +157,16 @@ class _Children:
         self._log_path = setup.path
 
     def wait_logger(self) -> None:
-        if self.logger is not None and not self._ready.wait(CHILD_START_TIMEOUT_S):
-            raise UserError(f"the logger process did not start within {CHILD_START_TIMEOUT_S:g} s (log {self._log_path})")
+        """Wait for the logger to be ready; a logger that dies meanwhile is said at once, not after the timeout."""
+        if self.logger is None:
+            return
+        end = time.monotonic() + CHILD_START_TIMEOUT_S
+        while not self._ready.wait(0.1):
+            if not self.logger.is_alive():
+                raise UserError(f"the logger process died during start-up (exit code {self.logger.exitcode}; "
+                                f"log {self._log_path}); nothing was recorded")
+            if time.monotonic() > end:
+                raise UserError(f"the logger process did not start within {CHILD_START_TIMEOUT_S:g} s (log {self._log_path})")
 
     def start_dashboard(self, info: Any) -> None:
         from furuta_rt.runtime.dashboard import dashboard_process
@@ -235,7 +245,17 @@ def _compensation_summary(opts: RunOptions, ctrl: Any) -> dict[str, Any]:
 
 
 def run_daemon(opts: RunOptions) -> int:
-    """Run one session; returns the exit code (UserError propagates for exit 2)."""
+    """Run one session; returns the exit code (UserError propagates for exit 2; ``Interrupted`` for a stop
+    signal during start-up). Every stop signal (``signals.STOP_SIGNALS``) is handled for the whole run."""
+    guard = stop_signals.RunGuard()
+    old = stop_signals.install(guard)
+    try:
+        return _run_session(opts, guard)
+    finally:
+        stop_signals.restore(old)
+
+
+def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
     rig = opts.rig
     rate = int(rig.control.rate_hz)
     warnings = list(opts.warnings)
@@ -251,9 +271,8 @@ def run_daemon(opts: RunOptions) -> int:
     ctrl = None
     mock_stats = ""
     log_ok = True
-    # SIGTERM during start-up ends like Ctrl-C (KeyboardInterrupt: exit 130) so the cleanup below runs
-    # and no hil-mock is left behind; the loop installs its own handlers while it runs
-    old_term = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    # a stop signal during start-up raises Interrupted (exit 128 + signum) so the cleanup below runs and
+    # no hil-mock is left behind; from the loop on it is an operator stop
     try:
         # start-up in parallel: the logger process, hil-mock (a few seconds of imports each) and, here,
         # the controller's own imports; the device handshake comes last, right before the first tick
@@ -329,11 +348,11 @@ def run_daemon(opts: RunOptions) -> int:
         for w in warnings + late_warnings:
             loop.event("WARNING", w)
         warnings += late_warnings
+        guard.forward_to(loop.request_stop)
         result = loop.run()
     finally:
-        # shutting down: a second Ctrl-C must not cut the log or leave the mock running
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        # shutting down: a second Ctrl-C (or a SIGTERM burst, a hang-up) must not cut the log or the summary
+        guard.shutting_down()
         if hw is not None:
             hw.stop()
             hw.close()
@@ -348,36 +367,63 @@ def run_daemon(opts: RunOptions) -> int:
                 mock_proc = mock_start.result(timeout=60)[0]
         if mock_proc is not None:
             mock_stats = _stop_mock(mock_proc)
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-        signal.signal(signal.SIGTERM, old_term)
     log_ticks = None
     if not log_ok and opts.log_path and result is not None:  # say what the file holds, not what was sent to it
         log_ticks = _ticks_on_disk(opts.log_path)
         summary = format_summary(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path,
                                  limits=_limits_text(opts, rate), log_ticks=log_ticks, log_incomplete=True,
                                  injected=mock_injections(opts.mock_args), **comp)
-    print(summary, flush=True)
+    code = _outcome(result, log_ok, opts)
+    # the outcome first: an output that fails now (a closed terminal, a broken pipe, an unwritable
+    # --summary-json) is one more line, never a different exit code for the run
+    lost = _emit(lambda: print(summary, flush=True))
     if mock_stats.strip():
-        print("\n".join("  " + line for line in mock_stats.strip().splitlines()), flush=True)
-    if not log_ok:
-        _say(f"error: the log {opts.log_path} is incomplete: the logger could not finish it (exit {EXIT_LOG_INCOMPLETE})")
+        lost = lost or _emit(lambda: print("\n".join("  " + line for line in mock_stats.strip().splitlines()), flush=True))
     if opts.summary_json:
         data = summary_dict(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path, warnings=warnings,
                             injected=mock_injections(opts.mock_args),
                             log_ticks=log_ticks if not log_ok else result.ticks if opts.log_path else None, **comp)
-        write_text(opts.summary_json, json.dumps(data, indent=1) + "\n", overwrite=opts.force, flag="--summary-json")
+        try:
+            write_text(opts.summary_json, json.dumps(data, indent=1) + "\n", overwrite=opts.force, flag="--summary-json")
+        except (UserError, OSError) as err:
+            why = str(err) if isinstance(err, UserError) else (err.strerror or str(err)).lower()
+            _emit(lambda: _say(f"error: --summary-json {opts.summary_json} not written: {why}"))
+            code = code or EXIT_USER_ERROR
+    if lost:
+        _emit(lambda: _say("error: the summary could not be printed (stdout closed or a broken pipe)"))
+    return code
+
+
+def _emit(write: Callable[[], None]) -> bool:
+    """Run one output step; True if the output is gone (closed terminal, broken pipe). Never raises."""
+    try:
+        write()
+    except OSError:
+        with contextlib.suppress(OSError, ValueError):  # later writes to it must not fail at exit either
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return True
+    return False
+
+
+def _outcome(result: Any, log_ok: bool, opts: RunOptions) -> int:
+    """The run's exit code, said on stderr: trip 1, incomplete log 3, never balanced 4 (not after an operator
+    stop: stopping a run on purpose is not an error), else 0."""
     if result.end == "trip":
         return EXIT_TRIPPED
     if not log_ok:
+        _emit(lambda: _say(f"error: the log {opts.log_path} is incomplete: the logger could not finish it "
+                           f"(exit {EXIT_LOG_INCOMPLETE})"))
         return EXIT_LOG_INCOMPLETE
-    if result.balancing_ticks == 0 and rig.swing_up.enabled:
-        _say(f"error: the pendulum never balanced: the swing-up never reached the catch region; exit {EXIT_NEVER_BALANCED}")
-        return EXIT_NEVER_BALANCED
-    if result.balancing_ticks == 0:
-        _say(f"error: the pendulum never balanced: it never came within the arming window (|θ| < "
-             f"{rig.safety.arm_theta:g} rad); exit {EXIT_NEVER_BALANCED}")
-        return EXIT_NEVER_BALANCED
-    return EXIT_OK
+    if result.balancing_ticks > 0:
+        return EXIT_OK
+    rig = opts.rig
+    where = ("the swing-up never reached the catch region" if rig.swing_up.enabled
+             else f"it never came within the arming window (|θ| < {rig.safety.arm_theta:g} rad)")
+    if result.end == "operator_stop":
+        _emit(lambda: _say(f"the pendulum did not balance before the operator stop: {where}"))
+        return EXIT_OK
+    _emit(lambda: _say(f"error: the pendulum never balanced: {where}; exit {EXIT_NEVER_BALANCED}"))
+    return EXIT_NEVER_BALANCED
 
 
 def default_tui() -> bool:

@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 import multiprocessing
 import queue
-import signal
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -27,6 +26,8 @@ from rich.live import Live
 from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
+
+from furuta_rt.runtime.signals import ignore_in_child as ignore_stop_signals
 
 _STATE_STYLE = {"idle": "yellow", "armed": "cyan", "balancing": "bold green", "tripped": "bold red",
                 "calibrating": "magenta", "swinging_up": "bold cyan"}
@@ -184,8 +185,7 @@ def render_numbers(snap: dict[str, Any]) -> Group:
 
 def dashboard_process(q: Any, info: DashboardInfo) -> None:
     """Entry point of the dashboard process (spawned): draw snapshots until None or the parent dies."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the daemon handles Ctrl-C and tells us to stop
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    ignore_stop_signals()  # the daemon handles Ctrl-C (and the rest) and tells us to stop
     parent = multiprocessing.parent_process()
     board = Dashboard(info)
     with Live(board.render(None), auto_refresh=False, transient=False) as live:

@@ -22,7 +22,6 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import queue
-import signal
 import sys
 import time
 from dataclasses import dataclass, field
@@ -34,6 +33,7 @@ from furuta_rt.errors import UserError
 from furuta_rt.io.mcap_log import LogWriter
 from furuta_rt.runtime.live import LiveView, start_live_view
 from furuta_rt.runtime.records import TICK_RECORD, TimeBase, tick_fields, timing_fields
+from furuta_rt.runtime.signals import ignore_in_child as ignore_stop_signals
 
 _DEV, _SEQ, _FC = (TICK_RECORD.index(name) for name in ("dev_ns", "seq", "fc_hat"))
 
@@ -147,8 +147,7 @@ def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None) -> N
     ``failed`` (an Event the daemon checks); the process then keeps draining the queue without writing,
     so the control process is never blocked by it.
     """
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the daemon decides
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    ignore_stop_signals()  # Ctrl-C or a closed terminal reaches the whole group: the daemon decides
     log: TickLog | None = TickLog(setup) if setup.path else None
     live: LiveView | None = start_live_view(setup.foxglove_port) if setup.foxglove_port else None
     ready.set()

@@ -37,6 +37,7 @@ from typing import Any, Protocol
 from firmware_protocol import COMMAND_FULL_SCALE, FAULT_MASK, CommandFlags, StatusFlags
 from furuta_rt.config import SwingUpConfig
 from furuta_rt.control.controller import Controller, Measurement
+from furuta_rt.runtime import signals as stop_signals
 from furuta_rt.runtime.calibration import CALIBRATION_METADATA, CalibrationWindow, StartupCalibration
 from furuta_rt.runtime.hardware import HardwareInterface, LinkLost
 from furuta_rt.runtime.records import STATE_NAMES, TICK_RECORD
@@ -236,7 +237,7 @@ class ControlLoop:
 
     # ----------------------------------------------------------------- the loop
     def run(self) -> LoopResult:
-        old = {s: signal.signal(s, self._signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        old = stop_signals.install(self._signal)  # Ctrl-C, Ctrl-\, kill, a closed terminal: an operator stop
         try:
             self._run()
         except LinkLost as err:
@@ -260,8 +261,7 @@ class ControlLoop:
             elif self._stop_error is not None:
                 self.event("ERROR", f"could not send u = 0 and STOP to the device ({self._stop_error}); "
                            "its watchdog or the hang-up has to zero the actuator")
-            for s, h in old.items():
-                signal.signal(s, h)
+            stop_signals.restore(old)
             r = self.result
             r.final_state = self.sup.state.label
             r.trip_reason = self.sup.reason
