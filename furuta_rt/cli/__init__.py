@@ -37,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     command = "furuta-rt"
     try:
-        parser = build_parser()  # imports every command module: Ctrl-C here is an interrupt, not a traceback
+        parser = _build_parser_uninterrupted()
         args = parser.parse_args(argv)
         command = f"furuta-rt {args.command}"
         return int(args.func(args) or 0)
@@ -61,6 +61,28 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if argv is None:  # the process's own command line: a late Ctrl-C must not interrupt the interpreter's exit
             _ignore_stop_signals()
+
+
+def _build_parser_uninterrupted() -> argparse.ArgumentParser:
+    """``build_parser`` (it imports every command module) with the stop signals held until it returns: an
+    interrupt inside an import can surface as some other error (numpy turns it into an ImportError), so it
+    is taken after the imports, as ``KeyboardInterrupt`` (exit 128 + signum)."""
+    held: list[int] = []
+    names = ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT")
+    try:
+        old = {getattr(signal, n): signal.signal(getattr(signal, n), lambda signum, _f: held.append(signum)) for n in names}
+    except ValueError:  # not the main thread: nothing to hold
+        return build_parser()
+    try:
+        parser = build_parser()
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+    if held:
+        err = KeyboardInterrupt(signal.Signals(held[0]).name)
+        err.exit_code = 128 + held[0]  # type: ignore[attr-defined]
+        raise err
+    return parser
 
 
 def _silence_stdout() -> None:
