@@ -3,6 +3,7 @@
     furuta-rt run --mock --duration 10                 balance the simulated pendulum (no hardware)
     furuta-rt run --port /dev/ttyACM0 --log run.mcap   the rig
     furuta-rt run --mock --swing-up                    calibrate hanging, swing up, catch and balance
+    furuta-rt run --mock --experiment plan.toml        balance and run a designed experiment (ends with the plan)
 
 Exit codes: 0 duration reached or operator stop (SIGINT, SIGQUIT, SIGTERM, SIGHUP: u = 0 and STOP sent
 first, log closed, summary printed); 1 the safety supervisor tripped (reason printed); 2 user error (one
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
 from furuta_rt.cli._common import add_config_argument, add_force_argument, parse_gains, rig_from_args
@@ -50,6 +52,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--swing-up", action="store_true", help="start from the pendulum hanging at rest: calibrate θ's zero "
                    "(~1 s still), swing up by energy control, catch and balance; a fall swings up again (the rig's "
                    "swing_up.on_fall); with --mock the mock starts hanging")
+    p.add_argument("--experiment", metavar="PLAN.toml", help="run a designed experiment while balancing (arm-reference "
+                   "steps, ramps, sweeps; chirps and dithers added to u; `furuta-rt experiment design` writes one): "
+                   "its segments are logged as events, the run ends when the plan does")
     p.add_argument("--comp", choices=COMP_MODES, help="friction compensation (default: the config's compensation.mode); "
                    "adaptive: Coulomb compensation whose level is estimated online while balancing")
     p.add_argument("--comp-from", metavar="REPORT.json", help="compensate the arm friction that `furuta-rt diagnose "
@@ -200,6 +205,7 @@ def run(args: argparse.Namespace) -> int:
         max_overruns = args.max_overruns
     elif args.mock:
         max_overruns = max(max_overruns, math.ceil(MOCK_TIMEOUT_MS / period_ms))
+    plan = _experiment_plan(args, rig, rate)
     rig_source = args.config or "thesis"
     opts = RunOptions(
         rig=rig,
@@ -222,5 +228,28 @@ def run(args: argparse.Namespace) -> int:
         rig_source=rig_source,
         comp_source=comp_source,
         warnings=warnings,
+        experiment=plan,
+        experiment_source=args.experiment or "",
     )
     return run_daemon(opts)
+
+
+def _experiment_plan(args: argparse.Namespace, rig: RigConfig, rate: int) -> object | None:
+    """--experiment's plan, checked against the rig's |u| and |φ| limits and --duration (one line if not)."""
+    if not args.experiment:
+        return None
+    from furuta_rt.experiment.plan import check_plan_limits, load_plan
+
+    plan = load_plan(args.experiment)
+    try:
+        check_plan_limits(plan, u_limit=rig.actuator.limit, phi_limit=rig.safety.phi_limit)
+    except UserError as err:
+        raise UserError(f"--experiment {args.experiment}: {err}") from None
+    need = plan.settle_s + plan.duration
+    if args.duration is not None and args.duration < need:
+        raise UserError(f"--duration {args.duration:g} s is shorter than the plan {args.experiment} "
+                        f"({need:.3g} s of balancing); leave --duration out to run until the plan ends")
+    lines = "; ".join(plan.describe())
+    print(f"furuta-rt: experiment {args.experiment}: {need:.3g} s of balancing at {rate} Hz: "
+          f"settle {plan.settle_s:g} s; {lines}", file=sys.stderr, flush=True)
+    return plan

@@ -14,6 +14,9 @@ swinging-up mode: the energy pump replaces u_lin until the catch region, balanci
 has tracked throughout, its φ set from the measurement; the compensator runs on), and a fall hands back. The
 observer then sees the gravity coupling at θ as sin θ cos θ (θ near upright, exact at hanging).
 
+With a designed experiment (``excitation``, furuta_rt.experiment.plan) the same ``update`` balances about the
+plan's arm reference and adds its torque to u_lin: u_lin = L·[θ, θ̇, φ − φ_r − φ_e, φ̂̇ − φ̇_r − φ̇_e] + u_e.
+
 Everything is scalar Python on floats: no allocation, no numpy on the hot path (the swing-up's energy aside).
 """
 
@@ -21,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -38,6 +41,9 @@ from furuta_rt.control.observer import ArmObserver, ArmObserverDesign
 from furuta_rt.control.swingup import SwingUp, SwingUpDesign, wrap_angle
 from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.sensors import Measurement
+
+if TYPE_CHECKING:
+    from furuta_rt.experiment.plan import Excitation
 
 
 class ControlOutput(NamedTuple):
@@ -111,6 +117,9 @@ class Controller:
             d = swing_up.design
             self._ref_w = 1.0 / d.arm_return_s
             self._ref_h = d.period
+        # a designed experiment (furuta_rt.experiment.plan.Excitation): stepped once per balancing tick, it moves the
+        # arm reference by (φ_e, φ̇_e) and adds u_e to the command
+        self.excitation: Excitation | None = None
         od = observer.design  # arm torque (N m) per rad of innovation: velocity correction / speed per N m per tick
         self._torque_per_innovation = float(od.K[1] / od.Bd[1, 1]) / command_per_torque
 
@@ -189,7 +198,13 @@ class Controller:
             u_lin = su.command(theta, m.theta_dot, phi, phi_dot)  # type: ignore[union-attr]
         else:
             ref, ref_dot = self.phi_ref, self.phi_dot_ref
-            u_lin = self.l1 * theta + self.l2 * m.theta_dot + self.l3 * (phi - ref) + self.l4 * (phi_dot - ref_dot)
+            exc = self.excitation
+            if exc is None:
+                u_lin = self.l1 * theta + self.l2 * m.theta_dot + self.l3 * (phi - ref) + self.l4 * (phi_dot - ref_dot)
+            else:
+                e_ref, e_dot, u_exc = exc.step()
+                u_lin = (self.l1 * theta + self.l2 * m.theta_dot + self.l3 * (phi - ref - e_ref)
+                         + self.l4 * (phi_dot - ref_dot - e_dot) + u_exc)
             if ref != 0.0 or ref_dot != 0.0:
                 w, h = self._ref_w, self._ref_h
                 ref_dot -= h * w * (w * ref + 2.0 * ref_dot)

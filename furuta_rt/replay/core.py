@@ -20,6 +20,7 @@ import numpy as np
 from furuta_rt.config import CompMode, RigConfig
 from furuta_rt.control.controller import Controller, Measurement
 from furuta_rt.errors import UserError
+from furuta_rt.experiment.plan import Excitation, plan_of_log
 from furuta_rt.io.mcap_read import LogData, require_ticks
 from furuta_rt.runtime.calibration import CALIBRATION_METADATA, StartupCalibration
 
@@ -109,6 +110,9 @@ def replay_log(
     the_mode = mode or log.mode or the_rig.compensation.mode
     the_gains = gains if gains is not None else log.gains
     ctrl = Controller.from_rig(the_rig, mode=the_mode, gains=the_gains)  # type: ignore[arg-type]
+    plan = plan_of_log(log.metadata)
+    if plan is not None:  # a designed experiment: the same excitation, stepped by the same balancing ticks
+        ctrl.excitation = Excitation(plan, log.run.get("rate_hz") or the_rig.control.rate_hz)
     same = (
         (rig is None or rig == log.rig)
         and (mode is None or mode == log.mode)

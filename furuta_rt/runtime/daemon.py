@@ -75,6 +75,8 @@ class RunOptions:
     rig_source: str = "thesis"
     warnings: list[str] = field(default_factory=list)
     comp_source: str = ""  # where the compensation's parameters came from (--comp-from), in words
+    experiment: Any = None  # a designed experiment's plan (furuta_rt.experiment.plan.Plan), run while balancing
+    experiment_source: str = ""  # its file
 
 
 def _say(message: str) -> None:
@@ -288,6 +290,10 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
         from furuta_rt.runtime.supervisor import Supervisor
 
         ctrl = Controller.from_rig(rig, mode=opts.mode, gains=opts.gains)  # type: ignore[arg-type]
+        if opts.experiment is not None:
+            from furuta_rt.experiment.plan import Excitation
+
+            ctrl.excitation = Excitation(opts.experiment, rate)
         limits = _limits(opts, rate)
         sup = Supervisor(limits)
         port = opts.port
@@ -341,8 +347,14 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
                 max_consecutive_overruns=str(limits.max_consecutive_overruns),
                 **({"comp_source": opts.comp_source} if opts.comp_source else {}),
                 swing_up=str(rig.swing_up.enabled).lower(),
+                **({"experiment": opts.experiment_source} if opts.experiment is not None else {}),
             )
             children.log_q.put_nowait(("open", info.metadata(), run_meta))
+            if opts.experiment is not None:
+                from furuta_rt.experiment.plan import METADATA_NAME
+
+                children.log_q.put_nowait(("metadata", METADATA_NAME, {
+                    "source": opts.experiment_source, "plan": opts.experiment.to_toml()}))
         loop.event("INFO", f"device {info.ack.device_id:#010x} firmware {info.firmware} at {port}, {info.rate_hz} Hz, "
                    f"watchdog {info.watchdog_ms} ms; {', '.join(applied)}")
         for w in warnings + late_warnings:

@@ -10,6 +10,8 @@ Per tick:
    with a swing-up the start-up calibration (furuta_rt.runtime.calibration) is taken while calibrating and
    applied to θ and φ from then on (the log keeps the device's readings and the calibration as metadata),
    and the controller's catch and fall move the supervisor between swinging_up and balancing;
+   with a designed experiment (``Controller.excitation``) each segment's start is logged as an event
+   ("experiment: segment k/n ..."), and the plan's end ends the run;
 4. ``write`` one COMMAND (ENABLE only when balancing). A sample that is already stale (a newer one is
    waiting: the period was missed) runs through the controller, so the observer keeps the device's
    time step, but gets no COMMAND: whole periods are skipped, commands are never burst;
@@ -79,7 +81,7 @@ class LoopSettings:
 class LoopResult:
     ticks: int = 0
     balancing_ticks: int = 0
-    end: str = "duration"  # duration | trip | operator_stop | error
+    end: str = "duration"  # duration | experiment (its plan ran to the end) | trip | operator_stop | error
     trip_reason: str = ""
     trip_message: str = ""
     final_state: str = "idle"
@@ -327,6 +329,7 @@ class ControlLoop:
         window = self.calibration_window
         startup: StartupCalibration | None = None
         swing_start_us = 0
+        excitation = ctrl.excitation  # a designed experiment: its segments are logged as events, its end ends the run
         while True:
             t0 = perf()
             s = hw.read(timeout)
@@ -488,6 +491,8 @@ class ControlLoop:
                     self._flush_batch()
             if len(sup.transitions) != self._n_sup_transitions:
                 self._transitions(seen)
+            if excitation is not None and excitation.message is not None:
+                self.event("INFO", excitation.take_message(), seen)  # type: ignore[arg-type]
             elif n == idle_notice and state is State.IDLE and not sup.transitions:
                 self.event("WARNING", f"not armed after {st.idle_notice_s:g} s: {sup.why_not_armed(theta, phi, status)}")
             if snap_ticks:
@@ -503,4 +508,7 @@ class ControlLoop:
                 return
             if target is not None and r.ticks >= target:
                 r.end = "duration"
+                return
+            if excitation is not None and excitation.done:
+                r.end = "experiment"
                 return

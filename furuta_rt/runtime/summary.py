@@ -70,6 +70,7 @@ def mock_injections(mock_args: Sequence[str] | None) -> list[str]:
 
 ENDINGS = {
     "duration": "duration reached",
+    "experiment": "experiment plan completed",
     "operator_stop": "stopped by the operator",
     "trip": "TRIPPED",
     "error": "internal error",

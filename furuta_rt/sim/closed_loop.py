@@ -13,6 +13,7 @@ import numpy as np
 
 from furuta_rt.config import CompMode, RigConfig
 from furuta_rt.control.controller import Controller
+from furuta_rt.experiment.plan import Excitation
 from furuta_rt.model.coupling import Coupling
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
@@ -34,16 +35,19 @@ def run_closed_loop(
     reference: np.ndarray | None = None,
     host_calibration: Calibration | None = None,
     coupling: Coupling | None = None,
+    excitation: Excitation | None = None,
 ) -> Recording:
     """Simulate ``duration`` s of balancing. ``reference``: optional arm-angle reference per tick
     (added to φ as u = L·(x − x_ref)), used to excite the loop. ``host_calibration``: the counts → SI conversion the
     host uses when it differs from the DAQ's (a sensor scale error; default: the rig's own). ``coupling``: a compliant
-    rotor–arm coupling (furuta_rt.model.coupling; default none: eq. 4's rigid arm)."""
+    rotor–arm coupling (furuta_rt.model.coupling; default none: eq. 4's rigid arm). ``excitation``: a designed
+    experiment's plan at the control rate (furuta_rt.experiment.plan), stepped by the controller as on the rig."""
     model = RigModel.from_config(rig, effects)
     if coupling is not None:
         model = dataclasses.replace(model, coupling=coupling)
     sim = Simulator(model, rig.control.rate_hz, substep_hz, seed=seed, x0=x0)
     ctrl = Controller.from_rig(rig, mode=mode, gains=gains)
+    ctrl.excitation = excitation
     n = round(duration * rig.control.rate_hz)
     cols = {k: np.empty(n) for k in (
         "t", "theta", "theta_dot", "phi", "u", "u_lin", "u_comp", "phi_dot_hat",

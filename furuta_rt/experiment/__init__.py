@@ -1,0 +1,1 @@
+"""Designed experiments: the plan a run executes while balancing (plan.py)."""
