@@ -81,7 +81,8 @@ def test_plan_signals_follow_their_definitions() -> None:
     assert np.abs(dither).max() == pytest.approx(0.05, rel=1e-3)
     # the chirp: amplitude 0.05, zero crossings spaced as 1/(2 f) with f rising from 0.5 to 4 Hz
     c = u[chirp]
-    assert np.abs(c).max() == pytest.approx(0.05, rel=1e-3) and np.all(ref[chirp] == pytest.approx(0.3))  # the sweep ends at +0.3 rad
+    assert np.abs(c).max() == pytest.approx(0.05, rel=1e-3)
+    assert ref[chirp] == pytest.approx(np.full(1000, 0.3))  # held where the sweep ended (+0.3 rad)
     crossings = (np.flatnonzero(np.diff(np.signbit(c))[1:]) + 1.5) / RATE  # sign changes after t = 0
     phase = 0.5 * crossings + 0.5 * (3.5 / 2.0) * crossings**2  # ∫f dt with f = 0.5 + 1.75 t Hz
     assert np.allclose(phase * 2, np.arange(1, len(crossings) + 1), atol=4.0 / RATE * 2)  # a half cycle each
