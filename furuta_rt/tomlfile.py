@@ -9,6 +9,10 @@ from pathlib import Path
 from typing import Any
 
 from furuta_rt.errors import UserError
+from furuta_rt.io.inputs import read_bounded, regular_input
+
+MAX_TOML_BYTES = 16 * 1024 * 1024
+"""A rig, mapping or mock config is kilobytes; more is not one (and is not read into memory)."""
 
 
 def read_toml(
@@ -27,10 +31,9 @@ def read_toml(
         hint = f"give a TOML file or a shipped {kind}: {', '.join(shipped)}" if shipped else "give a TOML file"
         if not p.exists():
             raise UserError(f"{kind} {p} does not exist; {hint}")
-        if not p.is_file():
-            raise UserError(f"{kind} {p} is not a file; {hint}")
+        regular_input(p, kind)  # not a directory, FIFO, device or link loop
         try:
-            text = p.read_text()
+            text = read_bounded(p, MAX_TOML_BYTES, kind).decode()
         except (OSError, UnicodeDecodeError) as err:
             raise UserError(f"cannot read {kind} {p}: {getattr(err, 'strerror', None) or err}") from None
         source = str(p)
@@ -38,3 +41,5 @@ def read_toml(
         return tomllib.loads(text), source
     except tomllib.TOMLDecodeError as err:
         raise UserError(f"{source}: not valid TOML: {err}") from None
+    except RecursionError:
+        raise UserError(f"{source}: nested too deeply to be a {kind}") from None

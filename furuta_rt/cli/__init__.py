@@ -53,6 +53,12 @@ def main(argv: list[str] | None = None) -> int:
         reason = (err.strerror or str(err)).lower()
         print(f"{command}: error: {reason}{target} (check the path and its permissions)", file=sys.stderr)
         return 2
+    except RuntimeError as err:  # pathlib's resolve() on a symbolic-link loop, wherever a path is resolved
+        if not str(err).startswith("Symlink loop from "):
+            raise
+        print(f"{command}: error: {str(err)[len('Symlink loop from '):]} is a symbolic link loop (it never reaches a file)",
+              file=sys.stderr)
+        return 2
     except KeyboardInterrupt as err:  # a stop signal before the command could handle it (start-up)
         name = err.args[0] if err.args and isinstance(err.args[0], str) else "SIGINT"
         with contextlib.suppress(OSError):

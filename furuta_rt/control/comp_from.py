@@ -24,6 +24,7 @@ from pydantic import ValidationError
 
 from furuta_rt.config import CompensationConfig, CompMode
 from furuta_rt.errors import UserError
+from furuta_rt.io.inputs import read_bounded, regular_input
 from furuta_rt.model.effects import Effects
 
 ARM_FRICTION = ("arm_coulomb", "arm_stiction", "arm_lugre", "arm_viscous")
@@ -39,10 +40,16 @@ class ReportCompensation:
     warnings: tuple[str, ...] = ()
 
 
+MAX_REPORT_BYTES = 64 * 1024 * 1024
+"""A diagnose report is kilobytes; more is not one."""
+
+
 def _load(path: str) -> dict[str, Any]:
     flag = f"--comp-from {path}"
+    if Path(path).exists() or Path(path).is_symlink():
+        regular_input(path, "--comp-from")  # a FIFO, a device, a link loop: one line, not a hang
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = read_bounded(path, MAX_REPORT_BYTES, "--comp-from").decode("utf-8")
     except FileNotFoundError:
         raise UserError(f"{flag}: no such file (give the JSON that `furuta-rt diagnose LOG --json OUT.json` wrote)") from None
     except IsADirectoryError:
@@ -52,6 +59,8 @@ def _load(path: str) -> dict[str, Any]:
         raise UserError(f"{flag}: cannot read it: {reason}") from None
     try:
         data = json.loads(text)
+    except RecursionError:
+        raise UserError(f"{flag}: nested too deeply to be a `furuta-rt diagnose --json` report") from None
     except ValueError as err:
         raise UserError(f"{flag}: not JSON ({err}); give the file `furuta-rt diagnose --json` wrote") from None
     if not isinstance(data, dict) or not isinstance(data.get("effects"), list):

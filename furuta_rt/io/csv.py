@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from furuta_rt.errors import UserError
+from furuta_rt.io.inputs import regular_input
 from furuta_rt.recording import Recording
 
 REQUIRED = ("t", "theta", "phi", "u")
@@ -25,8 +26,9 @@ def read_csv(path: str | Path, gaps: bool = False) -> Recording:
     non-finite cells are read as NaN and time stamps need only not decrease (for a reader that repairs them, e.g.
     furuta_rt.diagnose.signals.prepare)."""
     p = Path(path)
-    if not p.exists():
+    if not p.exists() and not p.is_symlink():
         raise UserError(f"recording {p} does not exist")
+    regular_input(p, "recording")  # a FIFO would block, /dev/zero never ends
     try:
         with p.open(newline="") as fh:
             reader = csv.reader(fh)
@@ -58,6 +60,8 @@ def read_csv(path: str | Path, gaps: bool = False) -> Recording:
                 rows.append(values)
     except UnicodeDecodeError:
         raise UserError(f"{p}: not a text CSV file") from None
+    except csv.Error as err:  # a field over the csv module's limit (128 KiB), a NUL byte, ...
+        raise UserError(f"{p}: not a CSV recording ({err})") from None
     except OSError as err:
         raise UserError(f"cannot read {p}: {err.strerror}") from None
     if len(rows) < 2:

@@ -27,6 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
+from furuta_rt.io.inputs import regular_input
 from furuta_rt.model.actuator import DCMotor
 from furuta_rt.recording import Recording
 from furuta_rt.tomlfile import read_toml
@@ -138,6 +139,8 @@ def load_mapping(name_or_path: str | Path, overrides: list[str] | tuple[str, ...
 
 def _read_columns(path: Path, names: dict[str, str], optional: set[str], mapping: CsvMapping) -> dict[str, np.ndarray]:
     """The named source columns as float arrays (NaN where a row has no value)."""
+    if path.exists() or path.is_symlink():
+        regular_input(path, "recording")  # a FIFO would block, /dev/zero never ends
     try:
         fh = path.open(newline="")
     except FileNotFoundError:

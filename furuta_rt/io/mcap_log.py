@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import json
+import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from mcap.writer import CompressionType, Writer
 from furuta_rt.config import CompMode, RigConfig
 from furuta_rt.errors import UserError
 from furuta_rt.io import log_schema as ls
+from furuta_rt.io.locks import open_locked_for_writing
 from furuta_rt.io.rig_toml import rig_to_toml
 from furuta_rt.model.rig import calibration_from_config
 from furuta_rt.recording import Recording
@@ -68,6 +70,10 @@ def _ns(seconds: float) -> int:
     return max(0, round(seconds * 1e9))
 
 
+class LogNotInPlace(UserError):
+    """The file a run writes is no longer at its path (deleted or replaced by someone else)."""
+
+
 class LogWriter:
     """Streaming writer of one log: ``tick``/``timing``/``event`` per record, ``close`` writes the summary."""
 
@@ -83,10 +89,9 @@ class LogWriter:
         exclusive: bool = False,
     ) -> None:
         self.path = Path(path)
-        try:
-            self._fh = self.path.open("xb" if exclusive else "wb")  # exclusive: never replace an existing file
-        except OSError as err:
-            raise UserError(f"cannot write {self.path}: {err.strerror}") from None
+        self._fh = open_locked_for_writing(self.path, exclusive=exclusive)
+        st = os.fstat(self._fh.fileno())
+        self._identity = (st.st_dev, st.st_ino)
         w = Writer(self._fh, chunk_size=chunk_size, compression=compression)
         w.start(profile=PROFILE, library=f"furuta_rt {package_version()}")
         w.add_metadata(ls.RIG_METADATA, rig_metadata(rig))
@@ -180,7 +185,21 @@ class LogWriter:
             self._closed = True
             self._write_batch()
             self._writer.finish()
+            self._fh.flush()
+            gone = self.not_in_place()
             self._fh.close()
+            if gone:
+                raise LogNotInPlace(gone)
+
+    def not_in_place(self) -> str | None:
+        """Why the file this writer writes is no longer the one at its path (deleted, replaced), or None."""
+        try:
+            st = os.stat(self.path)
+        except OSError:
+            return f"the log {self.path} was deleted while the run wrote it; what it held is gone"
+        if (st.st_dev, st.st_ino) != self._identity:
+            return f"the log {self.path} was replaced by another file while the run wrote it; what the run wrote is gone"
+        return None
 
     def __enter__(self) -> LogWriter:
         return self

@@ -19,6 +19,8 @@ from __future__ import annotations
 import gc
 import json
 import mmap
+import os
+import stat
 import struct
 import tomllib
 from collections.abc import Callable, Iterable
@@ -38,6 +40,7 @@ from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from furuta_rt.config import RigConfig, rig_from_dict
 from furuta_rt.errors import UserError
 from furuta_rt.io import log_schema as ls
+from furuta_rt.io.inputs import regular_input
 from furuta_rt.recording import Recording
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -56,8 +59,11 @@ _READ_ERRORS = (McapError, struct.error, ValueError, EOFError, MemoryError)
 
 
 def is_mcap(path: str | Path) -> bool:
-    """True if the file starts with the MCAP magic."""
+    """True if the file starts with the MCAP magic (False for anything but a regular file: a FIFO is never
+    opened here, where opening it would block)."""
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return False
         with Path(path).open("rb") as fh:
             return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
     except OSError:
@@ -365,11 +371,21 @@ class _Scan:
             pos += 9 + length
 
 
+_OPCODES = frozenset(int(o) for o in Opcode)
+
+
+def _valid_opcode(op: int) -> bool:
+    """An opcode of the MCAP specification, or one of its user range (0x80-0xFF): what a record can start with."""
+    return op in _OPCODES or op >= 0x80
+
+
 class _LogStreamReader(StreamReader):
     """mcap's StreamReader, skipping MessageIndex records (parsing their entries one by one would cost as
     much as reading the messages); furuta_rt.io.repair copies logs with it."""
 
     def _read_record(self, opcode: int, length: int) -> Any:
+        if not _valid_opcode(opcode):
+            raise McapError(f"no MCAP record here (opcode {opcode:#04x})")
         if opcode == Opcode.MESSAGE_INDEX:
             self._stream.read(length)
             return None
@@ -419,6 +435,7 @@ def _parse_record(op: int, source: Any, start: int, end: int) -> Any:
 def _scan(path: Path, want: dict[str, _Columns | _TickBatches], progress: Callable[[int, int], None] | None = None) -> _Scan:
     """Read the file's records front to back (memory-mapped: a chunk nobody wants is never copied), up to a torn
     end or the footer."""
+    regular_input(path, "log")  # a FIFO would block, /dev/zero never ends, a link loop is no file
     try:
         size = path.stat().st_size
         fh = path.open("rb")
@@ -454,6 +471,9 @@ def _scan_records(scan: _Scan, source: Any, path: Path, progress: Callable[[int,
             scan.problem = "the file ends inside a record's opcode and length"
             return
         op, length = _RECORD.unpack_from(source, pos)
+        if not _valid_opcode(op):  # zeros of a sparse file, or garbage: no MCAP record starts like this
+            scan.problem = f"no MCAP record at byte {pos} (opcode {op:#04x}); the rest of the file is not MCAP"
+            return
         start, end = pos + _RECORD.size, pos + _RECORD.size + length
         if end > size:
             scan.problem = f"a record (opcode {op:#04x}) of {length} bytes runs past the end of the file"
@@ -582,6 +602,8 @@ def _parse_rig(scan: _Scan, path: Path, warnings: list[str]) -> RigConfig | None
             problems.append(str(err))
         except (ValueError, UnicodeDecodeError) as err:
             problems.append(f"{path}: {source} does not parse: {err}")
+        except RecursionError:
+            problems.append(f"{path}: {source} is nested too deeply to be a rig")
     if problems:
         warnings.append(problems[0] + "; give the rig with --config")
     else:

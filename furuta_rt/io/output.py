@@ -25,6 +25,14 @@ Named = tuple[str, "str | Path | None"]
 """(the option that named it, e.g. ``--csv``; the path, or None when the option was not given)."""
 
 
+def _resolved(p: Path, flag: str) -> Path:
+    """``p`` with its symbolic links resolved; a link loop is one line, not a RuntimeError."""
+    try:
+        return p.resolve()
+    except (RuntimeError, OSError):
+        raise UserError(f"{flag} {p} is a symbolic link loop (it never reaches a file)") from None
+
+
 def refusal(flag: str, path: str | Path) -> UserError:
     """The one line that refuses to replace ``path`` (named by ``flag``)."""
     return UserError(f"{flag} {path} already exists; refusing to overwrite it (pass --force to replace it)")
@@ -67,12 +75,12 @@ def claim_outputs(outputs: Iterable[Named], *, force: bool, inputs: Iterable[str
     ``inputs``, not named twice, not an existing file unless ``force``, and writable (nothing is created
     or truncated here). Options that were not given (path None) are skipped."""
     seen: dict[Path, str] = {}
-    sources = {Path(p).resolve() for p in inputs}
+    sources = {_resolved(Path(p), "input") for p in inputs}
     for flag, path in outputs:
         if path is None:
             continue
         p = Path(path)
-        key = p.resolve()
+        key = _resolved(p, flag)
         if key in sources:
             raise UserError(f"{flag} {p} is the input; give another name")
         if key in seen and not _special(p):
@@ -129,7 +137,7 @@ def replace_when_done(path: str | Path, *, overwrite: bool = True, flag: str = "
     (/dev/null, /dev/stdout) is written directly."""
     p = Path(path)
     if p.is_symlink():
-        p = p.resolve()
+        p = _resolved(p, flag)
     if _special(p):
         yield p
         return

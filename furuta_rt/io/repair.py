@@ -16,6 +16,8 @@ from mcap.stream_reader import breakup_chunk
 from mcap.writer import Writer
 
 from furuta_rt.errors import UserError
+from furuta_rt.io.inputs import regular_input
+from furuta_rt.io.locks import refuse_if_being_written
 from furuta_rt.io.mcap_read import _READ_ERRORS, MCAP_MAGIC, _LogStreamReader
 from furuta_rt.io.output import refuse_existing, replace_when_done
 
@@ -99,9 +101,9 @@ def repair_log(
     alone unless ``force``; an existing ``output`` (or, in place, ``<name>.bak``: the original an earlier
     repair kept) is replaced only with ``force``. Nothing is replaced
     or deleted unless the rewrite succeeded: a log with nothing recoverable leaves every file as it was."""
-    src = Path(path)
-    if not src.is_file():
-        raise UserError(f"log {src} does not exist")
+    real = regular_input(path, "log")
+    src = real if Path(path).is_symlink() else Path(path)  # a link: the file it names is repaired, its .bak beside it
+    refuse_if_being_written(src, "log")
     with src.open("rb") as fh:
         if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
             raise UserError(f"{src} is not an MCAP file (no MCAP magic at the start); nothing to repair")

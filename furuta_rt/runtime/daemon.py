@@ -39,6 +39,7 @@ from typing import Any
 from firmware_protocol import DEFAULT_WATCHDOG_MS
 from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
+from furuta_rt.io.locks import refuse_if_being_written
 from furuta_rt.io.mcap_log import run_metadata
 from furuta_rt.io.output import probe_writable, write_text
 from furuta_rt.runtime import signals as stop_signals
@@ -88,6 +89,7 @@ def _check_log_path(path: str) -> None:
     device has answered, so a run that never starts replaces nothing)."""
     if Path(path).is_dir():
         raise UserError(f"--log {path} is a directory; give a file name such as run.mcap")
+    refuse_if_being_written(path, "--log")  # --force replaces a finished log, never one a run is writing
     probe_writable(path, "the log")
 
 

@@ -30,7 +30,7 @@ from typing import Any
 
 from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
-from furuta_rt.io.mcap_log import LogWriter
+from furuta_rt.io.mcap_log import LogNotInPlace, LogWriter
 from furuta_rt.runtime.live import LiveView, start_live_view
 from furuta_rt.runtime.records import TICK_RECORD, TimeBase, tick_fields, timing_fields
 from furuta_rt.runtime.signals import ignore_in_child as ignore_stop_signals
@@ -156,7 +156,8 @@ def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None) -> N
 
     def fail(err: Exception) -> None:
         nonlocal log
-        print(f"furuta-rt: error: {_failure(str(setup.path), err)}", file=sys.stderr, flush=True)
+        said = str(err) if isinstance(err, LogNotInPlace) else _failure(str(setup.path), err)
+        print(f"furuta-rt: error: {said}", file=sys.stderr, flush=True)
         if failed is not None:
             failed.set()
         if log is not None and log.writer is not None:
@@ -183,6 +184,9 @@ def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None) -> N
             if log is not None and now - last_flush >= setup.flush_s:
                 log.flush()
                 last_flush = now
+                gone = log.writer.not_in_place() if log.writer is not None else None
+                if gone:  # said at once, and the run ends with exit 3 (its log is not where it says)
+                    raise LogNotInPlace(gone)
         except (OSError, UserError) as err:
             fail(err)
         if gone or (item is None and parent is not None and not parent.is_alive()):

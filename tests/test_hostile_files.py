@@ -1,0 +1,157 @@
+"""Hostile files and the files of a running log, through the real CLI (subprocesses): FIFOs, /dev/zero,
+symbolic-link loops, nesting beyond the parsers' recursion, a CSV cell over the csv module's limit, a sparse
+file with the MCAP magic; a repair through a symbolic link; a log a run is writing (locked) and a log deleted
+under a run. Each: one line naming the file, exit 2 (3 for a run whose log is gone), no traceback, in
+bounded time — a FIFO or /dev/zero that hangs or eats memory fails by the subprocess timeout."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_reliability_harness import FURUTA_RT, ROOT, MockProcess, read_summary, start_daemon, traceback_free
+
+from furuta_rt.io.mcap_read import read_log
+
+TIMEOUT_S = 45  # a hang (FIFO) or an unbounded read (/dev/zero, a 2 GB sparse file) runs into it
+
+
+def _cli(*args: str, timeout: float = TIMEOUT_S) -> subprocess.CompletedProcess:
+    return subprocess.run([*FURUTA_RT, *args], capture_output=True, text=True, cwd=ROOT, timeout=timeout,
+                          stdin=subprocess.DEVNULL)
+
+
+def _one_line(proc: subprocess.CompletedProcess, *needles: str, code: int = 2) -> None:
+    err = proc.stderr.strip()
+    assert traceback_free(err + proc.stdout), err
+    assert proc.returncode == code, (proc.returncode, err)
+    assert len(err.splitlines()) == 1, err
+    for n in needles:
+        assert n in err, err
+
+
+def _recording_csv(path: Path, n: int = 20000) -> Path:
+    t = np.arange(n) / 500.0
+    data = np.column_stack([t, 0.01 * np.sin(3 * t), 0.2 * np.sin(t), 0.05 * np.cos(5 * t)])
+    np.savetxt(path, data, delimiter=",", header="t,theta,phi,u", comments="", fmt="%.6f")
+    return path
+
+
+@pytest.fixture
+def files(tmp_path: Path) -> dict[str, Path]:
+    fifo = tmp_path / "fifo.csv"
+    os.mkfifo(fifo)
+    loop = tmp_path / "loop.mcap"
+    os.symlink(tmp_path / "loop2.mcap", loop)
+    os.symlink(loop, tmp_path / "loop2.mcap")
+    deep_json = tmp_path / "deep.json"
+    deep_json.write_text("[" * 200_000 + "]" * 200_000)
+    deep_toml = tmp_path / "deep.toml"
+    deep_toml.write_text("a = " + "[" * 200_000 + "]" * 200_000 + "\n")
+    wide = tmp_path / "wide.csv"
+    wide.write_text("t,theta,phi,u\n0," + "1" * (200 * 1024) + ",0,0\n0.002,0,0,0\n")
+    sparse = tmp_path / "sparse.mcap"
+    with sparse.open("wb") as fh:
+        fh.write(b"\x89MCAP0\r\n")
+        fh.truncate(2 * 1024**3)  # 2 GB of zeros after the magic, no disk used
+    return {"fifo": fifo, "loop": loop, "deep_json": deep_json, "deep_toml": deep_toml, "wide": wide,
+            "sparse": sparse, "tmp": tmp_path}
+
+
+CASES = {
+    "replay a FIFO": (["replay", "{fifo}"], "FIFO"),
+    "convert a FIFO": (["convert", "{fifo}", "-o", "{tmp}/o.mcap"], "FIFO"),
+    "diagnose a FIFO": (["diagnose", "{fifo}"], "FIFO"),
+    "run --comp-from a FIFO": (["run", "--mock", "--no-tui", "--comp-from", "{fifo}"], "FIFO"),
+    "diagnose /dev/zero": (["diagnose", "/dev/zero"], "character device"),
+    "convert /dev/zero": (["convert", "/dev/zero", "-o", "{tmp}/o.mcap"], "character device"),
+    "replay /dev/zero": (["replay", "/dev/zero"], "character device"),
+    "run --comp-from /dev/zero": (["run", "--mock", "--no-tui", "--comp-from", "/dev/zero"], "character device"),
+    "replay a link loop": (["replay", "{loop}"], "symbolic link loop"),
+    "diagnose a link loop": (["diagnose", "{loop}"], "symbolic link loop"),
+    "repair a link loop": (["repair", "{loop}"], "symbolic link loop"),
+    "convert to a link loop": (["convert", "{wide}", "-o", "{loop}"], "symbolic link loop"),
+    "run --log a link loop": (["run", "--mock", "--no-tui", "--log", "{loop}"], "symbolic link loop"),
+    "run --comp-from deep JSON": (["run", "--mock", "--no-tui", "--comp-from", "{deep_json}"], "nested too deeply"),
+    "run --config deep TOML": (["run", "--mock", "--no-tui", "--config", "{deep_toml}"], "nested too deeply"),
+    "diagnose a CSV cell over 128 KiB": (["diagnose", "{wide}"], "wide.csv"),
+    "convert a CSV cell over 128 KiB": (["convert", "{wide}", "-o", "{tmp}/o.mcap"], "wide.csv"),
+    "replay a 2 GB sparse MCAP": (["replay", "{sparse}"], "sparse.mcap"),
+    "repair a 2 GB sparse MCAP": (["repair", "{sparse}"], "sparse.mcap"),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_a_hostile_input_is_one_line_exit_2_in_bounded_time(files: dict[str, Path], case: str) -> None:
+    argv, needle = CASES[case]
+    proc = _cli(*[a.format(**files) for a in argv])
+    _one_line(proc, needle)
+
+
+def test_repair_through_a_symlink_keeps_the_original_bytes_beside_the_target_and_the_link(tmp_path: Path) -> None:
+    good = tmp_path / "good.mcap"
+    proc = _cli("convert", str(_recording_csv(tmp_path / "rec.csv")), "-o", str(good))
+    assert proc.returncode == 0, proc.stderr
+    target_dir = tmp_path / "data"
+    target_dir.mkdir()
+    target = target_dir / "run.mcap"
+    torn = good.read_bytes()[: good.stat().st_size * 2 // 3]  # a killed run: no summary, a torn record
+    target.write_bytes(torn)
+    link = tmp_path / "link.mcap"
+    link.symlink_to(target)
+    proc = _cli("repair", str(link))
+    assert proc.returncode == 0, proc.stderr
+    assert link.is_symlink() and os.readlink(link) == str(target), "the link is left as it was"
+    bak = target_dir / "run.mcap.bak"
+    assert bak.is_file() and not bak.is_symlink() and bak.read_bytes() == torn, "the original bytes, as a real file"
+    assert not (tmp_path / "link.mcap.bak").exists()
+    assert str(bak) in proc.stdout, proc.stdout
+    assert not read_log(link).recovered  # the repaired file, read through the link, is complete
+
+
+def test_a_log_being_written_is_locked_against_force_repair_and_a_second_run(tmp_path: Path) -> None:
+    mock = MockProcess(tmp_path, [])
+    daemon = start_daemon(tmp_path, mock.port, duration=60.0)
+    log = tmp_path / "run.mcap"
+    try:
+        daemon.wait_for_line("→ balancing")
+        second = _cli("run", "--mock", "--no-tui", "--duration", "2", "--force", "--log", str(log),
+                      "--summary-json", str(tmp_path / "second.json"))
+        _one_line(second, "being written", str(log))
+        rep = _cli("repair", str(log))
+        _one_line(rep, "being written", str(log))
+        rep_force = _cli("repair", "--force", str(log))
+        _one_line(rep_force, "being written")
+        daemon.kill_group(signal.SIGINT)
+        rc = daemon.wait()
+    finally:
+        daemon.kill_group(signal.SIGKILL)
+        mock.stop()
+    assert rc == 0, daemon.stderr
+    data = read_log(log)
+    assert not data.recovered, data.warnings
+    assert data.n_ticks == read_summary(tmp_path)["log_ticks"]
+    assert not (tmp_path / "run.mcap.bak").exists()
+
+
+def test_a_log_deleted_under_a_running_run_is_said_at_once_and_the_run_exits_3(tmp_path: Path) -> None:
+    mock = MockProcess(tmp_path, [])
+    daemon = start_daemon(tmp_path, mock.port, duration=60.0)
+    try:
+        daemon.wait_for_line("→ balancing")
+        (tmp_path / "run.mcap").unlink()
+        line = daemon.wait_for_line("was deleted", timeout=30)  # said while the run goes on
+        assert daemon.proc.poll() is None, "the run went on"
+        daemon.kill_group(signal.SIGINT)
+        rc = daemon.wait()
+    finally:
+        daemon.kill_group(signal.SIGKILL)
+        mock.stop()
+    assert "run.mcap" in line
+    assert traceback_free(daemon.stderr + daemon.stdout), daemon.stderr
+    assert rc == 3, daemon.stderr
+    assert not (tmp_path / "run.mcap").exists()
