@@ -19,7 +19,7 @@ import sys
 
 from furuta_rt.errors import UserError
 
-COMMANDS = ("analyze", "convert", "design", "diagnose", "repair", "replay", "run")
+COMMANDS = ("analyze", "convert", "design", "diagnose", "experiment", "repair", "replay", "run")
 """The subcommand modules of this package, in the order ``--help`` lists them."""
 
 

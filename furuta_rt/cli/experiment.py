@@ -1,0 +1,100 @@
+"""`furuta-rt experiment design REPORT.json -o plan.toml`: the experiment that separates a report's look-alikes.
+
+    furuta-rt diagnose run.mcap --json report.json                 names a look-alike it cannot separate
+    furuta-rt experiment design report.json -o plan.toml           searches the excitation that separates them
+    furuta-rt run --port /dev/ttyACM0 --experiment plan.toml --log exp.mcap
+
+It prints what the plan does, how long it runs, the expected paired t between the two alternatives and the worst
+|φ|, |θ|, |u| predicted under either; a plan beyond the rig's limits is refused; an existing plan file is replaced
+only with --force.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from furuta_rt.cli._common import add_config_argument, add_force_argument, rig_from_args
+from furuta_rt.errors import UserError
+from furuta_rt.io.output import claim_outputs, write_text
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("experiment", help="design an experiment that separates a diagnose report's look-alikes")
+    verbs = p.add_subparsers(dest="verb", required=True, metavar="VERB")
+    d = verbs.add_parser("design", help="search the excitation that best separates the report's unresolved look-alike",
+                         description="Predict candidate excitations (arm sweeps and steps, chirps and dithers on u) "
+                         "with the simulator under both alternatives and write the one with the largest expected "
+                         "paired t that keeps within the rig's limits.")
+    d.add_argument("report", metavar="REPORT.json", help="`furuta-rt diagnose --json` output")
+    d.add_argument("-o", "--output", required=True, metavar="PLAN.toml", help="the plan to write (an existing file "
+                   "only with --force)")
+    add_config_argument(d)
+    add_force_argument(d, "the plan file")
+    d.add_argument("--budget", type=float, default=30.0, metavar="S", help="seconds of excitation (default 30; the "
+                   "settling second and the return to 0 come on top)")
+    d.add_argument("--pair", metavar="A,B", help="which look-alike, when the report has several (default: the first)")
+    d.add_argument("--max-phi", type=float, metavar="RAD", help="|φ| limit (default: the rig's safety.phi_limit)")
+    d.add_argument("--max-theta", type=float, metavar="RAD", help="|θ| limit (default: safety.theta_limit)")
+    d.add_argument("--max-u", type=float, metavar="U", help="|u| limit (default: actuator.limit; reaching it is "
+                   "saturation)")
+    d.set_defaults(func=run_design)
+
+
+def _load_report(path: str) -> dict:
+    try:
+        data = json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise UserError(f"{path}: no such report (write one with `furuta-rt diagnose LOG --json {path}`)") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise UserError(f"{path}: not a diagnose JSON report ({type(err).__name__})") from None
+    except IsADirectoryError:
+        raise UserError(f"{path} is a directory; give the report file") from None
+    if not isinstance(data, dict) or "effects" not in data:
+        raise UserError(f"{path}: not a diagnose JSON report (no 'effects')")
+    return data
+
+
+def run_design(args: argparse.Namespace) -> int:
+    from furuta_rt.experiment.design import alternatives_from_report, design
+
+    for flag, value in (("--budget", args.budget), ("--max-phi", args.max_phi), ("--max-theta", args.max_theta),
+                        ("--max-u", args.max_u)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise UserError(f"{flag} {value:g}: must be a positive number")
+    if Path(args.output).suffix.lower() != ".toml":
+        raise UserError(f"-o {args.output}: a plan is a TOML file; give a name ending in .toml")
+    claim_outputs([("-o", args.output)], force=args.force, inputs=[args.report])
+    rig = rig_from_args(args)
+    alt = alternatives_from_report(_load_report(args.report), args.pair)
+    limits = (args.max_phi or rig.safety.phi_limit, args.max_theta or rig.safety.theta_limit,
+              args.max_u or rig.actuator.limit)
+    passive = "" if alt.passive_t is None else f" (paired t {alt.passive_t:.1f} on the recording)"
+    print(f"look-alike: {alt.named} ↔ {alt.rival}{passive}", flush=True)
+
+    def progress(i: int, n: int, plan: object, sep: float) -> None:
+        print(f"  candidate {i}/{n}: {plan.segments[0].describe()}: expected t {sep:.1f}",  # type: ignore[attr-defined]
+              file=sys.stderr, flush=True)
+
+    best, _ = design(rig, alt, args.budget, limits=limits, progress=progress)
+    plan = best.plan
+    note = f"separates {alt.named} from {alt.rival}: expected paired t {best.separation:.1f}"
+    plan = type(plan)(plan.segments, plan.mode, plan.settle_s, plan.return_speed, note)
+    write_text(args.output, plan.to_toml(), overwrite=args.force, flag="-o")
+    total = plan.settle_s + plan.duration
+    print(f"plan {args.output}: {total:.1f} s while balancing (settle {plan.settle_s:g} s, then):")
+    for line in plan.describe():
+        print(f"  {line}")
+    print(f"expected separation: paired t {best.separation:.1f} ({alt.named} true: {best.separation_ab[0]:.1f}, "
+          f"{alt.rival} true: {best.separation_ab[1]:.1f}; ≥ 3 tells them apart)")
+    print(f"worst under either: |φ| {best.peak_phi:.3f} rad (limit {limits[0]:g}), |θ| {best.peak_theta:.4f} rad "
+          f"(limit {limits[1]:g}), |u| {best.peak_u:.3f} (limit {limits[2]:g})")
+    if best.separation < 3.0:
+        need = args.budget * (3.0 / max(best.separation, 1e-3)) ** 2
+        print(f"warning: expected paired t {best.separation:.1f} is below 3: this plan is not expected to tell them "
+              f"apart; a budget of about {need:.0f} s (t grows as the square root of the length) or looser limits")
+    print(f"next: furuta-rt run --port DEV --experiment {args.output} --log experiment.mcap")
+    return 0

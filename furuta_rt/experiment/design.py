@@ -1,0 +1,202 @@
+"""Design the experiment that tells two look-alike explanations apart (`furuta-rt experiment design`).
+
+A diagnose report names a look-alike pair when the recording cannot separate them: the model it reports (A) and an
+alternative (B) that fits almost as well (its "ambiguities": the alternative's effects and parameters). Both are
+physics the simulator runs (furuta_rt.sim.closed_loop with furuta_rt.model.effects), so each candidate excitation is
+predicted under A and under B, closed loop, through the same ``Controller.update`` the rig runs.
+
+The expected separation of a candidate: with A the truth, B refitted to A's prediction (its parameters moved by one
+Gauss–Newton step on a finite-difference sensitivity, as diagnose would refit them on the new data), the residual
+r = y_A − y_B* of the measured outputs y = (φ/σ_φ, θ/σ_θ), whitened by the sensor noise (encoder quantisation q/√12,
+the rig's θ noise). Comparing the two fits block by block on white noise, the expected paired t is ‖r‖/2 (the
+difference of the two squared errors has mean ‖r‖² and standard deviation 2‖r‖). The smaller of the two directions
+(A true, B true) is the candidate's score: a plan must separate the pair whichever is right.
+
+Candidates are scored on ``eval_s`` seconds and the score scaled by √(budget/eval_s) (a stationary excitation gains
+as the square root of its length); the chosen plan is then simulated whole under both alternatives for the worst
+|φ|, |θ|, |u|, and refused if either exceeds the rig's limits.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from furuta_rt.config import RigConfig
+from furuta_rt.errors import UserError
+from furuta_rt.experiment.plan import Excitation, Plan, Segment
+from furuta_rt.model.effects import Effects
+
+SUBSTEP_HZ = 2000.0  # the design's simulator substeps (the prediction, not the benchmark: 4× fewer than the default)
+
+
+@dataclass(frozen=True)
+class Alternatives:
+    """The two explanations a report could not separate, as simulator physics."""
+
+    named: str  # the effect the report names
+    rival: str  # its look-alike
+    a: dict[str, dict[str, float]]  # all effects with the named one
+    b: dict[str, dict[str, float]]  # all effects with the rival in its place
+    passive_t: float | None  # the report's paired t on the recording
+
+
+@dataclass(frozen=True)
+class Prediction:
+    plan: Plan
+    separation: float  # expected paired t (the smaller direction)
+    separation_ab: tuple[float, float]  # (A true, B true)
+    peak_phi: float
+    peak_theta: float
+    peak_u: float
+
+
+def alternatives_from_report(report: dict[str, Any], pair: str | None = None) -> Alternatives:
+    """The report's unresolved look-alike (``pair`` "a,b" picks one when there are several)."""
+    found = {e["name"]: dict(e["params"]) for e in report.get("effects") or []}
+    amb = [a for a in report.get("ambiguities") or [] if a.get("alternative")]
+    if pair is not None:
+        want = set(pair.split(","))
+        amb = [a for a in amb if set(a["effects"]) == want]
+        if not amb:
+            raise UserError(f"--pair {pair}: the report has no unresolved look-alike of these two")
+    if not amb:
+        raise UserError("the report has no unresolved look-alike (its 'ambiguities' are empty): nothing to separate")
+    entry = amb[0]
+    named, rival = entry["effects"][0], entry["effects"][1]
+    a = dict(found)
+    b = {k: v for k, v in found.items() if k != named}
+    b.update({k: dict(v) for k, v in (entry.get("alternative_model") or {}).items()})
+    b[rival] = dict(entry["alternative"]["params"])
+    b.pop(named, None)
+    for label, effects in (("reported", a), ("alternative", b)):
+        try:
+            Effects.model_validate(effects)
+        except ValueError as err:
+            raise UserError(f"the report's {label} model cannot be simulated: {str(err).splitlines()[0]}") from None
+    return Alternatives(named, rival, a, b, entry.get("paired_t"))
+
+
+def candidate_plans(rig: RigConfig, budget_s: float, settle_s: float = 1.0) -> list[Plan]:
+    """The family searched: constant-velocity sweeps, arm-reference steps, chirps and dithers on u, and a slow
+    sweep with a dither, each filling the budget. Amplitudes are fractions of the rig's |u| limit; arm travel of
+    ±0.2 and ±0.5 rad."""
+    u_lim = rig.actuator.limit
+    plans: list[Plan] = []
+
+    def add(*segments: Segment) -> None:
+        plans.append(Plan(tuple(segments), settle_s=settle_s))
+
+    for amp in (0.2, 0.5):
+        for speed in (0.1, 0.4, 1.2):
+            add(Segment("sweep", budget_s, {"amplitude": amp, "speed": speed}))
+        n = 6
+        add(*(Segment("step", budget_s / n, {"phi": amp if i % 2 == 0 else -amp}) for i in range(n)))
+    for frac in (0.02, 0.05):
+        add(Segment("chirp", budget_s, {"amplitude": frac * u_lim, "f0": 0.2, "f1": 3.0}))
+        for hz in (1.0, 5.0):
+            add(Segment("dither", budget_s, {"amplitude": frac * u_lim, "frequency": hz}))
+        add(Segment("sweep", budget_s, {"amplitude": 0.3, "speed": 0.1, "dither": frac * u_lim, "dither_hz": 5.0}))
+    return plans
+
+
+def _shortened(plan: Plan, seconds: float) -> Plan:
+    """The plan's first ``seconds`` (segments scaled in proportion), for scoring."""
+    scale = min(1.0, seconds / sum(s.duration for s in plan.segments))
+    return Plan(tuple(Segment(s.kind, s.duration * scale, s.params) for s in plan.segments), plan.mode, plan.settle_s,
+                plan.return_speed)
+
+
+def _noise_free(rig: RigConfig) -> RigConfig:
+    """The rig without sensor noise: the prediction is the response to the excitation alone (the noise's own
+    response is not known in advance and separates nothing; the noise enters as σ in ``_outputs``)."""
+    sensors = rig.sensors.model_copy(update={"theta_noise": 0.0, "theta_dot_noise": 0.0})
+    return rig.model_copy(update={"sensors": sensors})
+
+
+def _simulate(rig: RigConfig, effects: dict[str, dict[str, float]], plan: Plan, seed: int) -> Any:
+    """The plan under ``effects``, from rest upright (no arming transient), noise-free."""
+    from furuta_rt.sim.closed_loop import run_closed_loop
+
+    exc = Excitation(plan, rig.control.rate_hz)
+    return run_closed_loop(_noise_free(rig), exc.ticks / rig.control.rate_hz, effects=Effects.model_validate(effects),
+                           excitation=exc, seed=seed, substep_hz=SUBSTEP_HZ, x0=(0.0, 0.0, 0.0, 0.0))
+
+
+def _outputs(rig: RigConfig, rec: Any) -> np.ndarray:
+    """(φ/σ_φ, θ/σ_θ) of the excitation's ticks (the settling before it excluded)."""
+    sigma_phi = 2 * math.pi / rig.sensors.encoder_counts_per_rev / math.sqrt(12.0)
+    sigma_theta = max(rig.sensors.theta_noise, rig.sensors.theta_rad_per_count / math.sqrt(12.0))
+    return np.concatenate([rec.phi / sigma_phi, rec.theta / sigma_theta])
+
+
+def _refit_residual(rig: RigConfig, truth: np.ndarray, model: dict[str, dict[str, float]], name: str,
+                    plan: Plan, seed: int) -> float:
+    """‖truth − model*‖ after one Gauss–Newton step on ``name``'s parameters (finite differences)."""
+    y0 = _outputs(rig, _simulate(rig, model, plan, seed))
+    params = model[name]
+    cols = []
+    for key, value in params.items():
+        step = 0.05 * abs(value) if value else 1e-3
+        moved = {**model, name: {**params, key: value + step}}
+        try:
+            cols.append((_outputs(rig, _simulate(rig, moved, plan, seed)) - y0) / step)
+        except ValueError:  # a parameter at its bound: not refitted
+            continue
+    r = truth - y0
+    if cols:
+        jac = np.stack(cols, axis=1)
+        delta, *_ = np.linalg.lstsq(jac, r, rcond=None)
+        r = r - jac @ delta
+    return float(np.linalg.norm(r))
+
+
+def score(rig: RigConfig, alt: Alternatives, plan: Plan, seed: int = 0) -> tuple[float, float]:
+    """Expected paired t (A true, B refitted; B true, A refitted) of ``plan``."""
+    ya = _outputs(rig, _simulate(rig, alt.a, plan, seed))
+    yb = _outputs(rig, _simulate(rig, alt.b, plan, seed))
+    t_ab = _refit_residual(rig, ya, alt.b, alt.rival, plan, seed) / 2.0
+    t_ba = _refit_residual(rig, yb, alt.a, alt.named, plan, seed) / 2.0
+    return t_ab, t_ba
+
+
+def peaks(rig: RigConfig, alt: Alternatives, plan: Plan, seed: int = 0) -> tuple[float, float, float]:
+    """Worst |φ|, |θ|, |u| of the whole plan under either alternative (settling and the return included)."""
+    out = [0.0, 0.0, 0.0]
+    for effects in (alt.a, alt.b):
+        rec = _simulate(rig, effects, plan, seed)
+        for i, x in enumerate((rec.phi, rec.theta, rec.u)):
+            out[i] = max(out[i], float(np.max(np.abs(x))))
+    return out[0], out[1], out[2]
+
+
+def design(rig: RigConfig, alt: Alternatives, budget_s: float, *, eval_s: float = 6.0,
+           limits: tuple[float, float, float] | None = None, plans: list[Plan] | None = None,
+           progress: Any = None) -> tuple[Prediction, list[tuple[Plan, float]]]:
+    """The candidate with the largest expected paired t that keeps within ``limits`` (|φ|, |θ|, |u|; default the
+    rig's); all candidates' scores, best first. Raises UserError if no candidate keeps within the limits."""
+    phi_lim, theta_lim, u_lim = limits or (rig.safety.phi_limit, rig.safety.theta_limit, rig.actuator.limit)
+    family = plans if plans is not None else candidate_plans(rig, budget_s)
+    scored: list[tuple[Plan, float, tuple[float, float]]] = []
+    for i, plan in enumerate(family):
+        short = _shortened(plan, eval_s)
+        ab = score(rig, alt, short)
+        grow = math.sqrt(sum(s.duration for s in plan.segments) / sum(s.duration for s in short.segments))
+        scored.append((plan, min(ab) * grow, (ab[0] * grow, ab[1] * grow)))
+        if progress is not None:
+            progress(i + 1, len(family), plan, min(ab) * grow)
+    scored.sort(key=lambda x: -x[1])
+    refused = []
+    for plan, sep, ab in scored:
+        phi, theta, u = peaks(rig, alt, plan)
+        if phi < phi_lim and theta < theta_lim and u < u_lim:
+            return Prediction(plan, sep, ab, phi, theta, u), [(p, s) for p, s, _ in scored]
+        refused.append(f"{plan.segments[0].describe()}: |φ| {phi:.3g}, |θ| {theta:.3g}, |u| {u:.3g}")
+        if len(refused) >= 3:
+            break
+    raise UserError(f"the {len(refused)} best candidates exceed |φ| < {phi_lim:g} rad, |θ| < {theta_lim:g} rad or "
+                    f"|u| < {u_lim:g} under one of the alternatives (the best: {refused[0]}); a shorter budget or "
+                    "looser limits")

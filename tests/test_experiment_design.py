@@ -1,0 +1,85 @@
+"""Designed experiments, the design: a report's look-alike pair as two simulator models, candidate excitations
+scored by the expected paired t between them (predicted closed loop through the one Controller.update), limits
+checked on the whole plan under both, and `furuta-rt experiment design` as a user runs it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from furuta_rt.cli import main
+from furuta_rt.config import load_rig
+from furuta_rt.errors import UserError
+from furuta_rt.experiment.design import alternatives_from_report, design, score
+from furuta_rt.experiment.plan import Plan, Segment, load_plan
+
+# gain 0.8 on the command ↔ the arm inertia that gives the same β/gain at the thesis rig (β 0.0517 / 0.8: J 0.05 →
+# 0.0629): the pair the blind recordings left "too close to tell" (paired t 0.9)
+REPORT = {
+    "effects": [{"name": "arm_inertia", "params": {"J": 0.0629}}],
+    "ambiguities": [{"effects": ["arm_inertia", "input_gain"], "reported": "arm_inertia",
+                     "alternative": {"name": "input_gain", "params": {"gain": 0.8}},
+                     "alternative_model": {"input_gain": {"gain": 0.8}}, "paired_t": 0.9}],
+}
+
+
+def test_report_pair_becomes_two_models() -> None:
+    alt = alternatives_from_report(REPORT)
+    assert (alt.named, alt.rival, alt.passive_t) == ("arm_inertia", "input_gain", 0.9)
+    assert alt.a == {"arm_inertia": {"J": 0.0629}} and alt.b == {"input_gain": {"gain": 0.8}}
+    with pytest.raises(UserError, match="no unresolved look-alike"):
+        alternatives_from_report({"effects": [], "ambiguities": []})
+    with pytest.raises(UserError, match="--pair arm_coulomb,input_deadzone"):
+        alternatives_from_report(REPORT, "arm_coulomb,input_deadzone")
+
+
+def test_excitation_separates_what_balancing_alone_cannot() -> None:
+    """Balancing at rest with nothing added predicts no separation (noise-free, from rest: nothing tells them
+    apart); an arm sweep separates the pair (expected t > 5 both ways)."""
+    rig = load_rig("thesis")
+    alt = alternatives_from_report(REPORT)
+    passive = score(rig, alt, Plan((Segment("hold", 2.0),), settle_s=0.2))
+    sweep = score(rig, alt, Plan((Segment("sweep", 2.0, {"amplitude": 0.2, "speed": 0.4}),), settle_s=0.2))
+    assert max(passive) < 0.5 and min(sweep) > 5.0, (passive, sweep)
+
+
+def test_design_picks_the_best_candidate_within_limits_and_refuses_beyond() -> None:
+    rig = load_rig("thesis")
+    alt = alternatives_from_report(REPORT)
+    family = [Plan((Segment("hold", 3.0),), settle_s=0.2),
+              Plan((Segment("sweep", 3.0, {"amplitude": 0.2, "speed": 0.4}),), settle_s=0.2),
+              Plan((Segment("sweep", 3.0, {"amplitude": 0.5, "speed": 1.2}),), settle_s=0.2)]
+    best, ranked = design(rig, alt, 3.0, eval_s=1.5, plans=family)
+    assert ranked[-1][0] is family[0]  # doing nothing ranks last
+    assert best.separation == ranked[0][1] and best.separation > 3.0
+    assert best.peak_phi < rig.safety.phi_limit and best.peak_theta < rig.safety.theta_limit
+    assert best.peak_u < rig.actuator.limit
+    # a |φ| limit below the sweeps' travel: every exciting plan is refused, doing nothing is not worth writing
+    best_tight, _ = design(rig, alt, 3.0, eval_s=1.5, plans=family, limits=(0.1, 0.5, 2.0))
+    assert best_tight.plan is family[0] and best_tight.separation < 0.5
+    with pytest.raises(UserError, match="exceed"):
+        design(rig, alt, 3.0, eval_s=1.5, plans=family[1:], limits=(0.1, 0.5, 2.0))
+
+
+def test_cli_never_overwrites_a_plan_and_writes_a_loadable_one(tmp_path: Path, capsys: pytest.CaptureFixture,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    import furuta_rt.experiment.design as d
+
+    family = [Plan((Segment("sweep", 2.0, {"amplitude": 0.2, "speed": 0.4}),), settle_s=0.2)]
+    monkeypatch.setattr(d, "candidate_plans", lambda rig, budget, settle_s=1.0: family)
+    report = tmp_path / "report.json"
+    report.write_text(json.dumps(REPORT))
+    plan = tmp_path / "plan.toml"
+    plan.write_text("mine")
+    assert main(["experiment", "design", str(report), "-o", str(plan), "--budget", "2"]) == 2
+    err = capsys.readouterr().err
+    assert plan.read_text() == "mine" and "--force" in err and len(err.strip().splitlines()) == 1
+    assert main(["experiment", "design", str(report), "-o", str(plan), "--budget", "2", "--force"]) == 0
+    out = capsys.readouterr().out
+    written = load_plan(plan)
+    assert written.segments == family[0].segments and "arm_inertia from input_gain" in written.note
+    for needle in ("look-alike: arm_inertia ↔ input_gain (paired t 0.9", "expected separation: paired t",
+                   "worst under either: |φ|", "--experiment"):
+        assert needle in out, out
