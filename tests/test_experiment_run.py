@@ -123,6 +123,7 @@ def test_excitation_settles_marks_segments_and_ends() -> None:
     ('mode = "hanging"\n[[segment]]\nkind = "hold"\nduration = 1', "mode = 'hanging'"),
     ("settle_s = 1", "no [[segment]]"),
     ("settle_s = [", "not valid TOML"),
+    ("", "no [[segment]]"),
 ])
 def test_bad_plans_are_one_line_errors(tmp_path: Path, text: str, needle: str) -> None:
     with pytest.raises(UserError) as err:

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from furuta_rt.cli._common import add_config_argument, add_force_argument, rig_from_args
 from furuta_rt.errors import UserError
+from furuta_rt.io.inputs import read_bounded, regular_input
 from furuta_rt.io.output import claim_outputs, write_text
 
 
@@ -44,17 +45,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.set_defaults(func=run_design)
 
 
+MAX_REPORT_BYTES = 64 * 1024 * 1024
+"""A diagnose report is kilobytes; more is not one."""
+
+
 def _load_report(path: str) -> dict:
+    if not Path(path).exists() and not Path(path).is_symlink():
+        raise UserError(f"{path}: no such report (write one with `furuta-rt diagnose LOG --json {path}`)")
+    regular_input(path, "report")  # a FIFO, a device, a link loop: one line, not a hang
     try:
-        data = json.loads(Path(path).read_text())
-    except FileNotFoundError:
-        raise UserError(f"{path}: no such report (write one with `furuta-rt diagnose LOG --json {path}`)") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        data = json.loads(read_bounded(path, MAX_REPORT_BYTES, "report").decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError) as err:
         raise UserError(f"{path}: not a diagnose JSON report ({type(err).__name__})") from None
-    except IsADirectoryError:
-        raise UserError(f"{path} is a directory; give the report file") from None
-    if not isinstance(data, dict) or "effects" not in data:
-        raise UserError(f"{path}: not a diagnose JSON report (no 'effects')")
+    if not isinstance(data, dict) or not isinstance(data.get("effects"), list):
+        raise UserError(f"{path}: not a diagnose JSON report (no 'effects' list)")
     return data
 
 

@@ -56,8 +56,13 @@ class Prediction:
 
 def alternatives_from_report(report: dict[str, Any], pair: str | None = None) -> Alternatives:
     """The report's unresolved look-alike (``pair`` "a,b" picks one when there are several)."""
-    found = {e["name"]: dict(e["params"]) for e in report.get("effects") or []}
-    amb = [a for a in report.get("ambiguities") or [] if a.get("alternative")]
+    try:
+        found = {e["name"]: dict(e["params"]) for e in report.get("effects") or []}
+        amb = [a for a in report.get("ambiguities") or [] if a.get("alternative")]
+        for a in amb:
+            a["effects"][1], a["alternative"]["params"]  # noqa: B018 - the fields read below
+    except (KeyError, TypeError, IndexError, AttributeError) as err:
+        raise UserError(f"the report's effects or ambiguities are not diagnose's ({type(err).__name__}: {err})") from None
     if pair is not None:
         want = set(pair.split(","))
         amb = [a for a in amb if set(a["effects"]) == want]

@@ -216,18 +216,11 @@ def _check_reachable(plan: Plan, source: str) -> None:
 
 
 def load_plan(path: str | Path) -> Plan:
-    p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise UserError(f"{path}: no such plan file") from None
-    except IsADirectoryError:
-        raise UserError(f"{path} is a directory; give a plan file (plan.toml)") from None
-    except UnicodeDecodeError:
-        raise UserError(f"{path}: not a text file (a plan is TOML)") from None
-    except tomllib.TOMLDecodeError as err:
-        raise UserError(f"{path}: not valid TOML ({err})") from None
-    return plan_from_dict(data, str(path))
+    """A plan file, read as every TOML input is (a regular file, bounded; one line otherwise)."""
+    from furuta_rt.tomlfile import read_toml
+
+    data, source = read_toml(path, kind="plan")
+    return plan_from_dict(data, source)
 
 
 def check_plan_limits(plan: Plan, *, u_limit: float, phi_limit: float, margin: float = 0.8) -> None:
