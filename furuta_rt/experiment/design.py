@@ -60,7 +60,7 @@ def alternatives_from_report(report: dict[str, Any], pair: str | None = None) ->
         found = {e["name"]: dict(e["params"]) for e in report.get("effects") or []}
         amb = [a for a in report.get("ambiguities") or [] if a.get("alternative")]
         for a in amb:
-            a["effects"][1], a["alternative"]["params"]  # noqa: B018 - the fields read below
+            _ = a["effects"][1], a["alternative"]["params"]  # the fields read below
     except (KeyError, TypeError, IndexError, AttributeError) as err:
         raise UserError(f"the report's effects or ambiguities are not diagnose's ({type(err).__name__}: {err})") from None
     if pair is not None:
