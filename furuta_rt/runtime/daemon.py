@@ -120,6 +120,9 @@ def _ticks_on_disk(path: str) -> int | None:
 
 def _check_device(info: DeviceInfo, rig: RigConfig, warnings: list[str]) -> None:
     """Refuse a device that cannot run this rig; warn where its calibration differs from the config."""
+    bad = info.implausible()
+    if bad:
+        raise UserError(f"the device's HELLO_ACK is not usable: {bad}; check the firmware")
     if info.actuator_kind != rig.actuator.kind:
         raise UserError(f"the device drives a {info.actuator_kind} actuator but rig '{rig.name}' is configured "
                         f"for '{rig.actuator.kind}'; use the matching --config")
@@ -359,8 +362,8 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
                     "source": opts.experiment_source, "plan": opts.experiment.to_toml()}))
         loop.event("INFO", f"device {info.ack.device_id:#010x} firmware {info.firmware} at {port}, {info.rate_hz} Hz, "
                    f"watchdog {info.watchdog_ms} ms; {', '.join(applied)}")
-        for w in warnings + late_warnings:
-            loop.event("WARNING", w)
+        for w in warnings + late_warnings:  # printed above: logged here (the dashboard shows the log's events)
+            loop.event("WARNING", w, show=False)
         warnings += late_warnings
         guard.forward_to(loop.request_stop)
         result = loop.run()

@@ -80,7 +80,23 @@ class DeviceInfo:
 
     @property
     def actuator_kind(self) -> str:
-        return "torque" if self.ack.actuator_kind == ActuatorKind.TORQUE_NM else "dc_motor"
+        kind = self.ack.actuator_kind
+        if kind == ActuatorKind.TORQUE_NM:
+            return "torque"
+        return "dc_motor" if kind == ActuatorKind.VOLTAGE_V else f"unknown kind {kind}"
+
+    def implausible(self) -> str | None:
+        """What in the HELLO_ACK no rig can use (PROTOCOL.md's field ranges), or None."""
+        a = self.ack
+        if a.actuator_kind not in tuple(ActuatorKind):
+            return f"actuator_kind = {a.actuator_kind} is none of {', '.join(f'{k.value} ({k.name})' for k in ActuatorKind)}"
+        if a.phi_counts_per_rev <= 0:
+            return f"phi_counts_per_rev = {a.phi_counts_per_rev} (the arm encoder needs > 0 counts per revolution)"
+        for name in ("theta_rad_per_count", "theta_dot_rad_s_per_count", "actuator_full_scale"):
+            v = getattr(a, name)
+            if not (math.isfinite(v) and v > 0):
+                return f"{name} = {v:g} (must be a finite scale > 0)"
+        return None
 
     @property
     def firmware(self) -> str:

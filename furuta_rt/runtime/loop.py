@@ -187,8 +187,9 @@ class ControlLoop:
     def _wall(self, perf_ns: int) -> int:
         return self._wall0 + (perf_ns - self._perf0)
 
-    def event(self, level: str, message: str, perf_ns: int | None = None) -> None:
-        """Record a supervisor/fault/warning event: logged (after the pending ticks) and shown."""
+    def event(self, level: str, message: str, perf_ns: int | None = None, *, show: bool = True) -> None:
+        """Record a supervisor/fault/warning event: logged (after the pending ticks) and shown (unless ``show``
+        is False: already said)."""
         wall = self._wall(time.perf_counter_ns() if perf_ns is None else perf_ns)
         self.result.events.append((wall, level, message))
         self._flush_batch()
@@ -197,7 +198,7 @@ class ControlLoop:
                 self.log.put_nowait(("event", (wall, level, message)))
             except queue.Full:
                 self.result.dropped_log_messages += 1
-        if self.on_event is not None:
+        if self.on_event is not None and show:
             self.on_event(level, message)
 
     def _flush_batch(self) -> None:
