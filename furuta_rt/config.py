@@ -181,7 +181,7 @@ class LuGreComp(_Section):
 
 
 class AdaptiveComp(_Section):
-    """Adaptive Coulomb compensation (furuta_rt.control.compensation.AdaptiveCoulomb)."""
+    """Adaptive Coulomb compensation (furuta_rt.controller.compensation.AdaptiveCoulomb)."""
 
     Fc0: NonNegative = Field(default=0.0, description="initial Coulomb estimate, N m")
     Fc_max: Positive = Field(default=1.5, description="upper bound of the estimate, N m")
@@ -218,7 +218,7 @@ class SafetyConfig(_Section):
 
 
 class SwingUpConfig(_Section):
-    """Energy swing-up from hanging (Åström & Furuta 2000) and the catch into balancing (furuta_rt.control.swingup).
+    """Energy swing-up from hanging (Åström & Furuta 2000) and the catch into balancing (furuta_rt.controller.swingup).
     A key left out (None) is derived from the model there."""
 
     enabled: bool = Field(default=False, description="swing up from hanging before balancing (run --swing-up)")

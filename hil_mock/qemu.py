@@ -1,7 +1,7 @@
 """The cross-compiled firmware core under qemu-system-arm, with the rig simulated in the image, on a pty.
 
 ``build_image(rig)`` writes ``qemu_plant.h`` — the rig's sampled linear model (eq. 6 with the actuator and the θ
-Bessel path, zero-order hold at the control rate: furuta_rt.control.loop_analysis.loop_model, the one definition)
+Bessel path, zero-order hold at the control rate: furuta_rt.controller.loop_analysis.loop_model, the one definition)
 and the rig's DAQ calibration — and cross-compiles firmware/stm32f4/qemu_board.c with the core and the codec.
 ``start_qemu(image)`` runs it on the netduinoplus2 machine with USART2 on a pseudo-terminal and returns the pty's
 path: ``furuta-rt run --port PTY`` then talks to the same C that runs on the board.
@@ -22,7 +22,7 @@ import numpy as np
 
 from firmware_protocol.hostbuild import CODEC_DIR, CORE_DIR, FIRMWARE_DIR, REQUIRED_FLAGS, build_dir
 from furuta_rt.config import RigConfig
-from furuta_rt.control.loop_analysis import loop_model
+from furuta_rt.controller.loop_analysis import loop_model
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 

@@ -62,7 +62,7 @@ def bench_tick(quick: bool) -> dict[str, Any]:
     to the logger's batch, per tick, against a 1 kHz period (target p99 ≤ 5%)."""
     from firmware_protocol import Sample, StreamDecoder, encode, encode_command
     from furuta_rt.config import load_rig
-    from furuta_rt.control.controller import Controller, Measurement
+    from furuta_rt.controller.controller import Controller, Measurement
     from furuta_rt.model.rig import calibration_from_config
 
     rig = load_rig("thesis")
@@ -170,7 +170,7 @@ def _closed_loop_vs_scipy(model: Any, rig: Any, law: Any, duration: float) -> di
 
     from scipy.integrate import solve_ivp
 
-    from furuta_rt.control.controller import Controller, Measurement
+    from furuta_rt.controller.controller import Controller, Measurement
     from furuta_rt.sim.simulator import Simulator
 
     model = dataclasses.replace(model, bessel=None, theta_noise=0.0, theta_dot_noise=0.0)
@@ -991,8 +991,9 @@ def _rusage_s() -> float:
 def bench_diagnose(quick: bool) -> dict[str, Any]:
     """`diagnose` with the CLI's default options (closed-loop re-simulation on) on 60 s, 500 Hz
     recordings of the diagnose suite (scripts/bench_diagnose's cases and cache)."""
+    from benchmarks import suite
     from furuta_rt.config import load_rig
-    from furuta_rt.diagnose import Options, diagnose, suite
+    from furuta_rt.diagnose import Options, diagnose
 
     rig = load_rig("thesis")
     cache = Path.home() / ".cache" / "furuta-rt" / "diagnose-suite"

@@ -20,9 +20,9 @@ from test_bad_input import _call, _check
 
 from furuta_rt.cli import main as furuta_main
 from furuta_rt.config import load_rig
-from furuta_rt.control.comp_from import compensation_from_report
-from furuta_rt.control.compensation import AdaptiveCoulomb, Compensator
-from furuta_rt.control.controller import Controller
+from furuta_rt.controller.comp_from import compensation_from_report
+from furuta_rt.controller.compensation import AdaptiveCoulomb, Compensator
+from furuta_rt.controller.controller import Controller
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.friction import Coulomb, JointFriction
 from furuta_rt.model.rig import RigModel

@@ -9,7 +9,7 @@ import pytest
 
 from furuta_rt.cli import main
 from furuta_rt.config import load_rig
-from furuta_rt.control.design import (
+from furuta_rt.controller.design import (
     characteristic_polynomial,
     lqr_gains,
     place_gains,
@@ -17,7 +17,7 @@ from furuta_rt.control.design import (
     target_poles,
     target_polynomial,
 )
-from furuta_rt.control.loop_analysis import analyze, minimum_stable_cutoff
+from furuta_rt.controller.loop_analysis import analyze, minimum_stable_cutoff
 from furuta_rt.model.plant import FurutaPlant
 
 THESIS_L = [19.92, 3.230, 0.7274, 0.4850]

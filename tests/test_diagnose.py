@@ -9,11 +9,12 @@ import math
 import numpy as np
 import pytest
 
+from benchmarks import suite
 from furuta_rt.cli import main
 from furuta_rt.config import load_rig
-from furuta_rt.diagnose import Options, diagnose, suite
-from furuta_rt.diagnose.signals import GaussianFilter, prepare
-from furuta_rt.diagnose.verify import quiet
+from furuta_rt.diagnose import Options, diagnose
+from furuta_rt.diagnose.judgement.verify import quiet
+from furuta_rt.diagnose.regression.states import GaussianFilter, prepare
 from furuta_rt.io.csv import write_csv
 from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.recording import Recording
@@ -244,7 +245,7 @@ def test_too_short_recording_is_refused(rig) -> None:
 def test_free_decay_tells_viscous_and_coulomb_pivot_friction_apart() -> None:
     """A simulated free swing with both kinds of pivot friction: the energy lost per cycle needs both, and the
     fitted values come back (eq. 1 and viscous laws of furuta_rt.model.friction)."""
-    from furuta_rt.diagnose.decay import free_decay, is_free_decay
+    from furuta_rt.diagnose.stages.decay import free_decay, is_free_decay
     from furuta_rt.model.effects import effects_from_assignments
     from furuta_rt.model.rig import RigModel
     from furuta_rt.sim.simulator import Simulator

@@ -1,4 +1,4 @@
-"""`diagnose` on an independent voltage-driven rig (furuta_rt.diagnose.suite_independent_dc), and the two pieces of the
+"""`diagnose` on an independent voltage-driven rig (benchmarks.suite_independent_dc), and the two pieces of the
 held-out metric that such recordings exposed: folds that train on every part of the recording (gate.make_plan), and a
 verdict that heavy-tailed per-window errors do not hide (verify.compare)."""
 
@@ -9,10 +9,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from benchmarks import suite_independent_dc as dc
+from benchmarks.suite import score_realistic
 from furuta_rt.config import load_rig
-from furuta_rt.diagnose import Options, diagnose, gate, verify
-from furuta_rt.diagnose import suite_independent_dc as dc
-from furuta_rt.diagnose.suite import score_realistic
+from furuta_rt.diagnose import Options, diagnose
+from furuta_rt.diagnose.judgement import verify
+from furuta_rt.diagnose.stages import gate
 
 
 def prediction(errors: list[float], diverged: int = 0) -> verify.Prediction:

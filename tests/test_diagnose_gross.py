@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.suite_realistic import simulate, true_steady_speed_per_volt
 from furuta_rt.config import load_rig
 from furuta_rt.diagnose import Options, diagnose
-from furuta_rt.diagnose.library import CANDIDATES, kink_supported
-from furuta_rt.diagnose.suite_realistic import simulate, true_steady_speed_per_volt
+from furuta_rt.diagnose.regression.library import CANDIDATES, kink_supported
 from furuta_rt.model.effects import effects_from_assignments
 
 FAST = Options(closed_loop=False, max_windows=15)
@@ -90,7 +90,7 @@ def test_input_gain_is_plausible_from_a_hundredth_to_a_thousand_times_the_config
 
 
 def test_the_page_says_which_effects_only_a_combination_pins() -> None:
-    from furuta_rt.diagnose.page import html_page
+    from furuta_rt.diagnose.report.page import html_page
 
     combo = {"name": "speed_per_volt", "value": 37.83, "se": 0.004, "unit": "rad/s per V",
              "members": ["input_gain", "arm_viscous"]}

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
+from benchmarks.suite import reference_signal
 from furuta_rt.config import load_rig
 from furuta_rt.diagnose import Options, diagnose
-from furuta_rt.diagnose.suite import reference_signal
 from furuta_rt.model.effects import Effects, effects_from_assignments
 from furuta_rt.model.rig import RigModel
 from furuta_rt.recording import Recording

@@ -1,4 +1,4 @@
-"""`diagnose` against an independent simulator of the thesis rig (furuta_rt.diagnose.suite_independent): the oracle
+"""`diagnose` against an independent simulator of the thesis rig (benchmarks.suite_independent): the oracle
 agrees with our simulator where it must (the plant and the timing), and the diagnosis does not read the oracle's
 differences (controller, sensor path, integration) as physics."""
 
@@ -9,9 +9,9 @@ import dataclasses
 import numpy as np
 import pytest
 
+from benchmarks import suite_independent as ind
 from furuta_rt.config import load_rig
 from furuta_rt.diagnose import Options, diagnose
-from furuta_rt.diagnose import suite_independent as ind
 from furuta_rt.model.rig import RigModel
 from furuta_rt.sim.simulator import Simulator
 

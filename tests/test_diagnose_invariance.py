@@ -15,12 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks import suite
 from furuta_rt.config import load_rig, rig_from_dict
-from furuta_rt.diagnose import Options, diagnose, suite
-from furuta_rt.diagnose.library import ARM, CANDIDATES, Context
-from furuta_rt.diagnose.select import EquationModel, Thresholds
-from furuta_rt.diagnose.signals import GaussianFilter, canonical_angles, prepare
-from furuta_rt.diagnose.stickslip import assess
+from furuta_rt.diagnose import Options, diagnose
+from furuta_rt.diagnose.regression.library import ARM, CANDIDATES, Context
+from furuta_rt.diagnose.regression.selection import EquationModel, Thresholds
+from furuta_rt.diagnose.regression.states import GaussianFilter, canonical_angles, prepare
+from furuta_rt.diagnose.stages.stickslip import assess
 from furuta_rt.model.rig import RigModel
 from furuta_rt.recording import Recording
 from furuta_rt.sim.simulator import Simulator

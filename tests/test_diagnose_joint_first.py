@@ -12,9 +12,9 @@ import pytest
 from furuta_rt.config import load_rig
 from furuta_rt.diagnose import Options
 from furuta_rt.diagnose.engine import arm_sigma
-from furuta_rt.diagnose.library import ARM, Context
-from furuta_rt.diagnose.select import EquationModel
-from furuta_rt.diagnose.signals import prepare
+from furuta_rt.diagnose.regression.library import ARM, Context
+from furuta_rt.diagnose.regression.selection import EquationModel
+from furuta_rt.diagnose.regression.states import prepare
 from furuta_rt.model.effects import effects_from_assignments
 from furuta_rt.model.sensors import Calibration, count_of, quantise
 
@@ -25,7 +25,7 @@ QUBE_J = 6.19e-5  # the config's arm inertia (Quanser's Jr + rotor + hub)
 def sine_3x() -> tuple:
     """20 s of the QUBE shape driven by a two-sine voltage, pendulum hanging: torque per volt ×3, arm inertia ×1.5,
     Quanser's arm damping; the config's latency."""
-    from furuta_rt.diagnose.suite_realistic import simulate
+    from benchmarks.suite_realistic import simulate
 
     rig = load_rig("qube_servo2")
     eff = effects_from_assignments(["input_gain.gain=3", f"arm_inertia.J={1.5 * QUBE_J:.4g}", "arm_viscous.Fv=0.0015"])
@@ -82,7 +82,7 @@ def test_a_balancing_loop_holding_a_constant_torque_calibrates_it_with_the_gain(
     gain (×0.08 for ×1.5) beside a spring. The inertia of the balancing arm is not identifiable (its profile runs to
     the grid's end), so the calibration without it but with the offset goes first: the speed per volt and the
     torque come back, and no spring or deadzone."""
-    from furuta_rt.diagnose.suite_realistic import simulate
+    from benchmarks.suite_realistic import simulate
 
     rig = load_rig("qube_servo2")
     true = {"gain": 1.5, "Fv": 0.0015, "tau": 0.0005}

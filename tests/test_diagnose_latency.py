@@ -1,13 +1,13 @@
-"""The command latency profiled jointly with the arm's linear parameters (furuta_rt.diagnose.latency, issue 14)."""
+"""The command latency profiled jointly with the arm's linear parameters (furuta_rt.diagnose.stages.latency, issue 14)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from benchmarks.suite_realistic import simulate
 from furuta_rt.config import load_rig
 from furuta_rt.diagnose import Options, diagnose
-from furuta_rt.diagnose.suite_realistic import simulate
 from furuta_rt.model.effects import effects_from_assignments
 
 FAST = Options(closed_loop=False, max_windows=15)

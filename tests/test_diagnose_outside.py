@@ -1,5 +1,5 @@
 """Mismatches outside the library (issue 13): a compliant rotor–arm coupling is not explained by library effects that
-stand in for it (the band test, furuta_rt.diagnose.gate.band_check) and is offered as a compliance or mode; a true
+stand in for it (the band test, furuta_rt.diagnose.stages.gate.band_check) and is offered as a compliance or mode; a true
 library effect passes the band test; a pendulum-inertia error seen only in the catch transient of a balancing run is
 not `consistent` (the possible causes' blocked standard error and their share removed where they act)."""
 
@@ -10,11 +10,22 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from benchmarks import suite
 from furuta_rt.config import load_rig
-from furuta_rt.diagnose import Options, diagnose, gate, suite, verify
+from furuta_rt.diagnose import Options, diagnose
 from furuta_rt.diagnose.engine import refit
-from furuta_rt.diagnose.library import ARM, PEND
-from furuta_rt.diagnose.verdict import FLOOR_ACCURACY, T_CRIT, _block_se, _removes_where_it_acts, band_t, block_t, mode_cause
+from furuta_rt.diagnose.judgement import verify
+from furuta_rt.diagnose.judgement.verdict import (
+    FLOOR_ACCURACY,
+    T_CRIT,
+    _block_se,
+    _removes_where_it_acts,
+    band_t,
+    block_t,
+    mode_cause,
+)
+from furuta_rt.diagnose.regression.library import ARM, PEND
+from furuta_rt.diagnose.stages import gate
 
 FAST = Options(closed_loop=False, max_windows=20)
 SECONDS = 30.0

@@ -1,4 +1,4 @@
-"""The held-out prediction metric and the prediction gate of `diagnose` (furuta_rt.diagnose.verify, .gate)."""
+"""The held-out prediction metric and the prediction gate of `diagnose` (furuta_rt.diagnose.judgement.verify, .gate)."""
 
 from __future__ import annotations
 
@@ -7,13 +7,15 @@ import math
 import numpy as np
 import pytest
 
+from benchmarks.suite import reference_signal
 from furuta_rt.config import load_rig
-from furuta_rt.diagnose import Options, diagnose, gate, verify
+from furuta_rt.diagnose import Options, diagnose
 from furuta_rt.diagnose.engine import Found
-from furuta_rt.diagnose.library import ARM, PEND, Context
-from furuta_rt.diagnose.select import EquationModel
-from furuta_rt.diagnose.signals import prepare
-from furuta_rt.diagnose.suite import reference_signal
+from furuta_rt.diagnose.judgement import verify
+from furuta_rt.diagnose.regression.library import ARM, PEND, Context
+from furuta_rt.diagnose.regression.selection import EquationModel
+from furuta_rt.diagnose.regression.states import prepare
+from furuta_rt.diagnose.stages import gate
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 from furuta_rt.recording import Recording

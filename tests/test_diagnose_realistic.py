@@ -60,7 +60,7 @@ def test_bessel_cutoff_none_in_toml_and_bad_values() -> None:
 def test_realistic_recording_is_encoder_data_of_the_true_rig() -> None:
     """The generator records what an encoder rig records: θ and φ on their encoders' count grids, no θ̇ column, the
     commanded volts; and the true rig's torque per volt shows in the arm's steady speed (a step train)."""
-    from furuta_rt.diagnose.suite_realistic import simulate
+    from benchmarks.suite_realistic import simulate
     from furuta_rt.model.effects import effects_from_assignments
 
     rig = load_rig("qube_servo2")
@@ -85,7 +85,7 @@ def test_one_realistic_case_end_to_end(tmp_path) -> None:
     the pendulum hanging) diagnosed against the nominal config: the steady speed per volt comes back within 20 % and
     the augmented model predicts better (the time constant needs the arm inertia, which the tool may leave at the
     config's: the bench reports it)."""
-    from furuta_rt.diagnose import suite
+    from benchmarks import suite
 
     case = suite._r("qube_servo2", "sine", 7, 3.0, 1.5, 1)
     case = suite.RealisticCase(case.name, case.shape, case.excitation, case.effects, case.latency_ticks, case.seed,
@@ -110,7 +110,7 @@ def test_one_realistic_case_end_to_end(tmp_path) -> None:
 def test_realistic_scoring() -> None:
     """The truth scores as found with nothing false; an extra effect is false; a latency is scored within half a tick,
     and one reported where the config's is right is false."""
-    from furuta_rt.diagnose import suite
+    from benchmarks import suite
 
     case = suite._r("macstepien", "step", 1, 7.0, 0.5, 3, "arm_bias.tau=0.003")
     truth = [{"name": n, "params": p} for n, p in case.injected.items()]
@@ -137,7 +137,7 @@ def test_fit_steps_recovers_a_known_arm() -> None:
     import importlib.util
     from pathlib import Path
 
-    from furuta_rt.diagnose.suite_realistic import simulate, true_steady_speed_per_volt
+    from benchmarks.suite_realistic import simulate, true_steady_speed_per_volt
     from furuta_rt.model.effects import effects_from_assignments
 
     path = Path(__file__).resolve().parents[1] / "scripts" / "fit_steps"

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from benchmarks import suite
 from furuta_rt.config import load_rig
-from furuta_rt.diagnose import Options, diagnose, onset, suite
-from furuta_rt.diagnose.library import CANDIDATES
-from furuta_rt.diagnose.select import Spec
+from furuta_rt.diagnose import Options, diagnose
+from furuta_rt.diagnose.regression.library import CANDIDATES
+from furuta_rt.diagnose.regression.selection import Spec
+from furuta_rt.diagnose.stages import onset
 from furuta_rt.model.effects import EFFECT_TYPES
 
 
@@ -46,7 +48,7 @@ def test_single_step_from_rest_is_a_gain_not_a_bias(tmp_path) -> None:
     assert told and told[0]["reported"] == "input_gain" and told[0]["rest"]["turn_rad"] > 1.0, told
     s = suite.score_realistic(case, out, 0.0)
     assert s.detected["speed_per_volt"], s.errors
-    # the start from rest is timed (furuta_rt.diagnose.onset) and the config's latency, which is the true one, fits it
+    # the start from rest is timed (furuta_rt.diagnose.stages.onset) and the config's latency, which is the true one, fits it
     starts = out["arm_starts"]
     assert starts["total"] is None and "consistent" in starts["reason"]
     assert max(starts["stray_at_config_counts"]) <= onset.MAX_STRAY, starts

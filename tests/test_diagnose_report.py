@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from benchmarks import suite
 from furuta_rt.cli import main
 from furuta_rt.config import load_rig
-from furuta_rt.diagnose import suite
-from furuta_rt.diagnose.page import html_page
+from furuta_rt.diagnose.report.page import html_page
 from furuta_rt.io.csv import write_csv
 from furuta_rt.recording import Recording
 

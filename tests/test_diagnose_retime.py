@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import pytest
 
+from benchmarks import suite
 from furuta_rt.config import load_rig
-from furuta_rt.diagnose import Options, diagnose, suite
+from furuta_rt.diagnose import Options, diagnose
 
 FAST = Options(closed_loop=False, max_windows=15)
 

@@ -16,8 +16,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from benchmarks import suite
 from furuta_rt.config import load_rig
-from furuta_rt.diagnose import Options, diagnose, suite
+from furuta_rt.diagnose import Options, diagnose
 from furuta_rt.errors import UserError
 from furuta_rt.io.csv import read_csv, write_csv
 from furuta_rt.recording import Recording
@@ -213,12 +214,12 @@ def test_a_reversed_step_is_caught_by_the_command_s_work(dc_step, column, words)
     """Energy balance (eq. 4's E and friction that only dissipates): a step whose command does negative work on an
     arm that gains energy has u or φ reversed, and positive work tells a reversed θ (the pendulum row) from φ; as
     recorded, the same step passes the checks."""
-    from furuta_rt.diagnose import checks
-    from furuta_rt.diagnose.signals import prepare
+    from furuta_rt.diagnose.regression.states import prepare
+    from furuta_rt.diagnose.stages import conventions
 
     rec, rig = dc_step
-    assert checks.conventions(prepare(rec, rig), rig) is not None  # as recorded: no error
+    assert conventions.conventions(prepare(rec, rig), rig) is not None  # as recorded: no error
     bad = dataclasses.replace(rec, **{column: -getattr(rec, column)})
     with pytest.raises(UserError, match=words) as err:
-        checks.conventions(prepare(bad, rig), rig)
+        conventions.conventions(prepare(bad, rig), rig)
     assert "J of work on the arm" in str(err.value) and f"--map {column}.scale=-1" in str(err.value)

@@ -1,11 +1,11 @@
-"""The stick windows' error measure (furuta_rt.diagnose.stickslip.cell_error): motion within one encoder count is no
+"""The stick windows' error measure (furuta_rt.diagnose.stages.stickslip.cell_error): motion within one encoder count is no
 error, exactly, whatever the unknown start position inside the first count."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from furuta_rt.diagnose.stickslip import cell_error
+from furuta_rt.diagnose.stages.stickslip import cell_error
 
 LSB = 2 * np.pi / 4096
 

@@ -1,4 +1,4 @@
-"""The verdict per equation (furuta_rt.diagnose.verdict): a null recording is consistent, a library effect is
+"""The verdict per equation (furuta_rt.diagnose.judgement.verdict): a null recording is consistent, a library effect is
 explained, a mismatch outside the library (the pendulum's inertia) is neither and names the inertia first; the noise
 floor matches the true sensor part of the residual on the simulator."""
 
@@ -10,10 +10,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from benchmarks import suite
 from furuta_rt.config import load_rig
-from furuta_rt.diagnose import Options, diagnose, noise, suite
-from furuta_rt.diagnose.library import ARM, PEND
-from furuta_rt.diagnose.locate import Location, describe
+from furuta_rt.diagnose import Options, diagnose
+from furuta_rt.diagnose.judgement import noise
+from furuta_rt.diagnose.judgement.locate import Location, describe
+from furuta_rt.diagnose.regression.library import ARM, PEND
 
 FAST = Options(closed_loop=False, max_windows=15)
 SECONDS = 25.0
@@ -113,7 +115,7 @@ def test_describe_never_says_consistent_without_the_verdict():
 def test_a_transient_far_above_the_floor_is_never_within_it():
     """An excess concentrated in one block (a step's transient) has a small block t and fails the sign test; the
     size guard still refuses it, and a residual that is the floor's own size stays within."""
-    from furuta_rt.diagnose.verdict import FLOOR_ACCURACY, N_BLOCKS, SIZE_MAX, T_CRIT, block_t
+    from furuta_rt.diagnose.judgement.verdict import FLOOR_ACCURACY, N_BLOCKS, SIZE_MAX, T_CRIT, block_t
 
     rng = np.random.default_rng(0)
     n = 16 * 200

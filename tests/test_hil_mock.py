@@ -17,7 +17,7 @@ import pytest
 import serial
 
 from firmware_protocol import FAULT_MASK, CommandFlags, Hello, HelloAck, Sample, StatusFlags, make_hello
-from furuta_rt.control.controller import Controller, Measurement
+from furuta_rt.controller.controller import Controller, Measurement
 from furuta_rt.model.sensors import Calibration
 from furuta_rt.sim.closed_loop import run_closed_loop
 from hil_mock.config import build_config

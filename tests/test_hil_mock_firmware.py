@@ -237,7 +237,7 @@ def test_full_turn_theta_sensor_wraps_through_pi_without_overrange():
 def test_firmware_reproduces_closed_loop_simulation():
     """Same order of operations and seed as run_closed_loop: identical counts at the first ticks and
     trajectories equal up to the COMMAND quantisation over 1 s of balancing with Coulomb friction."""
-    from furuta_rt.control.controller import Controller, Measurement
+    from furuta_rt.controller.controller import Controller, Measurement
 
     cfg = build_config(effects=["arm_coulomb.Fc=0.05"], device={"rate_hz": 500, "seed": 3, "initial_theta": 0.05})
     rig = cfg.load_rig()

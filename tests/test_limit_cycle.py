@@ -26,8 +26,8 @@ from furuta_rt.analysis.periodic_orbit import (
     simulate_limit_cycle,
 )
 from furuta_rt.cli import main
-from furuta_rt.control.controller import design_gains
-from furuta_rt.control.design import characteristic_polynomial
+from furuta_rt.controller.controller import design_gains
+from furuta_rt.controller.design import characteristic_polynomial
 from furuta_rt.model.plant import FurutaPlant
 
 

@@ -16,7 +16,7 @@ from mcap.stream_reader import StreamReader
 from test_run_loop import SimDevice, make_loop
 
 from furuta_rt.config import RigConfig, load_rig
-from furuta_rt.control.controller import Controller
+from furuta_rt.controller.controller import Controller
 from furuta_rt.io import log_schema as ls
 from furuta_rt.io.mcap_log import run_metadata
 from furuta_rt.io.mcap_read import read_log

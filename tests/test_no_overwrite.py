@@ -17,7 +17,7 @@ from test_reliability_harness import FURUTA_RT
 
 from furuta_rt.cli import main
 from furuta_rt.config import load_rig
-from furuta_rt.diagnose.report import OUTPUTS
+from furuta_rt.diagnose.report.render import OUTPUTS
 from furuta_rt.errors import UserError
 from furuta_rt.io.csv import write_csv
 from furuta_rt.io.mcap_log import write_recording_mcap

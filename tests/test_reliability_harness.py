@@ -168,7 +168,7 @@ def run_host_loop(pieces: list[bytes], *, link_timeout_s: float, rate: int = 500
     the overrun limit lifted: a Python writer thread is not a clock) against a PtyDevice writing ``pieces``.
     Returns (LoopResult, the logger sink, the device with the COMMANDs it got, the hardware)."""
     from furuta_rt.config import load_rig
-    from furuta_rt.control.controller import Controller
+    from furuta_rt.controller.controller import Controller
     from furuta_rt.model.rig import calibration_from_config
     from furuta_rt.runtime.hardware import SerialHardware
     from furuta_rt.runtime.loop import ControlLoop, LoopSettings

@@ -33,7 +33,7 @@ from test_reliability_harness import (
 
 import firmware_protocol as fp
 from furuta_rt.config import load_rig
-from furuta_rt.control.controller import Controller
+from furuta_rt.controller.controller import Controller
 from furuta_rt.io.mcap_read import read_log
 from furuta_rt.runtime.hardware import LinkLost, SerialHardware
 from furuta_rt.runtime.loop import ControlLoop, LoopSettings

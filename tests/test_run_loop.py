@@ -21,7 +21,7 @@ import firmware_protocol as fp
 from firmware_protocol import COMMAND_FULL_SCALE, CommandFlags, Sample, StatusFlags, counts_to_actuator
 from furuta_rt.cli import main as cli_main
 from furuta_rt.config import RigConfig, load_rig
-from furuta_rt.control.controller import Controller, Measurement
+from furuta_rt.controller.controller import Controller, Measurement
 from furuta_rt.errors import UserError
 from furuta_rt.model.rig import RigModel
 from furuta_rt.runtime.hardware import HardwareInterface, SerialHardware, check_usb_latency

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 
-from furuta_rt.control.controller import Controller, Measurement, observer_design
+from furuta_rt.controller.controller import Controller, Measurement, observer_design
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.sensors import BesselPath, Calibration
 from furuta_rt.sim.closed_loop import run_closed_loop

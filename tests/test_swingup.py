@@ -1,6 +1,6 @@
 """Energy swing-up (Åström & Furuta 2000) inside Controller.update, against the simulator (faster than real time).
 
-The figures asserted here are the simulation's, at the rigs' derived defaults (furuta_rt/control/swingup.py):
+The figures asserted here are the simulation's, at the rigs' derived defaults (furuta_rt/controller/swingup.py):
 from hanging at rest the thesis rig with arm Coulomb friction 0.3 N m is caught and balancing after 5.4–5.5 s,
 the QUBE-Servo 2 after 2.0–2.1 s, the macstepien rig after 1.2–1.3 s, the arm within 2.1 / 1.2 / 3.8 rad of its
 start (limits 18.85 / 3.0 / 6.3 rad). The HIL tests (test_swingup_hil.py) use these to bound the real-time runs.
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from furuta_rt.config import RigConfig, load_rig
-from furuta_rt.control.controller import Controller
-from furuta_rt.control.swingup import SwingUp, SwingUpDesign, wrap_angle
+from furuta_rt.controller.controller import Controller
+from furuta_rt.controller.swingup import SwingUp, SwingUpDesign, wrap_angle
 from furuta_rt.model.effects import effects_from_assignments
 from furuta_rt.model.sensors import Measurement
 from furuta_rt.sim.closed_loop import run_closed_loop

@@ -114,7 +114,7 @@ def test_the_loop_calibrates_swings_up_catches_and_shows_it() -> None:
     from rich.console import Console
     from test_run_loop import RATE, SimDevice
 
-    from furuta_rt.control.controller import Controller
+    from furuta_rt.controller.controller import Controller
     from furuta_rt.model.rig import RigModel
     from furuta_rt.runtime.dashboard import render
     from furuta_rt.runtime.loop import ControlLoop, LoopSettings

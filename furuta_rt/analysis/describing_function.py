@@ -23,8 +23,8 @@ import numpy as np
 from scipy.optimize import brentq
 
 from furuta_rt.config import ActuatorConfig, RigConfig
-from furuta_rt.control.design import actuated_linearization
-from furuta_rt.control.loop_analysis import loop_model
+from furuta_rt.controller.design import actuated_linearization
+from furuta_rt.controller.loop_analysis import loop_model
 from furuta_rt.model.plant import FurutaPlant
 
 # The four feedbacks of thesis section 4 and the thesis' conclusion (limit cycle or not).
@@ -295,7 +295,7 @@ def _python_control_intersections(
 
 def sampled_limit_cycle(rig: RigConfig, gains: np.ndarray | list[float], fc: float) -> list[LimitCyclePrediction]:
     """The describing function applied to the loop as it runs: the tick map of
-    furuta_rt.control.loop_analysis (plant, Bessel path, observer, command delay at the loop rate) with
+    furuta_rt.controller.loop_analysis (plant, Bessel path, observer, command delay at the loop rate) with
     the friction torque entering the plant directly (held over a tick, unseen by the observer).
 
     G_s(e^{jωh}) = C_φ̇ (zI − F)⁻¹ Γ_F; solutions where it crosses the negative real axis below the

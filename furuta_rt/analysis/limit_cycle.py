@@ -22,8 +22,8 @@ from furuta_rt.analysis.periodic_orbit import (
     simulate_limit_cycle,
 )
 from furuta_rt.config import RigConfig
-from furuta_rt.control.controller import design_gains
-from furuta_rt.control.loop_analysis import analyze
+from furuta_rt.controller.controller import design_gains
+from furuta_rt.controller.loop_analysis import analyze
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.plant import FurutaPlant
 

@@ -1,5 +1,5 @@
 """Minimum-time swing-up with the actuator's bound, by trajectory optimisation (direct collocation with scipy): the
-reference the energy swing-up (furuta_rt.control.swingup) is compared with in scripts/bench.
+reference the energy swing-up (furuta_rt.controller.swingup) is compared with in scripts/bench.
 
     find the least T for which there are x_k = [θ, θ̇, φ, φ̇](t_k), commands u_k and accelerations (θ̈, φ̈)_k,
     t_k = k T / N, with
@@ -27,7 +27,7 @@ import scipy.optimize
 import scipy.sparse
 
 from furuta_rt.config import RigConfig
-from furuta_rt.control.swingup import SwingUpDesign
+from furuta_rt.controller.swingup import SwingUpDesign
 from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.rig import RigModel
 from furuta_rt.sim.simulator import Simulator

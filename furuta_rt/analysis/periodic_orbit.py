@@ -25,7 +25,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from furuta_rt.config import CompMode, RigConfig
-from furuta_rt.control.controller import Controller, Measurement
+from furuta_rt.controller.controller import Controller, Measurement
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 from furuta_rt.sim.simulator import Simulator

@@ -26,7 +26,7 @@ from furuta_rt.analysis.describing_function import SECTION4_CASES, analyze_limit
 from furuta_rt.analysis.limit_cycle import coulomb_effects, orbit_report
 from furuta_rt.analysis.periodic_orbit import IdealLoop, Trajectory, record_trajectory
 from furuta_rt.config import CompMode, RigConfig, load_rig
-from furuta_rt.control.controller import Controller, design_gains
+from furuta_rt.controller.controller import Controller, design_gains
 from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.sensors import Measurement
 from furuta_rt.recording import Recording
@@ -210,7 +210,7 @@ def beyond_thesis(rig: RigConfig, fc: float, uncompensated: Recording, out: Path
     """Section 8's suggestions, through what furuta-rt adds: (1) `diagnose` the uncompensated run and compensate
     with what it found (``run --comp-from``: the report is written to ``out``), (2) adaptive Coulomb compensation
     starting from F̂c = 0 (``--comp adaptive``). Both against the same simulated friction as the table."""
-    from furuta_rt.control.comp_from import compensation_from_report
+    from furuta_rt.controller.comp_from import compensation_from_report
     from furuta_rt.diagnose.engine import Options, diagnose
 
     report = out / "diagnosis_no_compensation.json"

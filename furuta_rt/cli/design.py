@@ -10,8 +10,8 @@ from rich.console import Console
 from rich.table import Table
 
 from furuta_rt.cli._common import add_config_argument, parse_gains, rig_from_args
-from furuta_rt.control.design import place_gains
-from furuta_rt.control.loop_analysis import analyze, minimum_stable_cutoff
+from furuta_rt.controller.design import place_gains
+from furuta_rt.controller.loop_analysis import analyze, minimum_stable_cutoff
 from furuta_rt.model.plant import FurutaPlant
 
 

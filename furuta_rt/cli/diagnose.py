@@ -124,7 +124,7 @@ def with_theta_filter(rig: RigConfig, text: str) -> RigConfig:
 
 def run(args: argparse.Namespace) -> int:
     from furuta_rt.diagnose import Options, diagnose
-    from furuta_rt.diagnose.report import OUTPUTS, check_directory, text, write_report
+    from furuta_rt.diagnose.report.render import OUTPUTS, check_directory, text, write_report
 
     # every output claimed before the diagnosis: a user's files are never overwritten, and a refusal comes first
     claim_outputs([("--json", None if args.json == "-" else args.json)], force=args.force, inputs=[args.recording])

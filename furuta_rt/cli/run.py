@@ -111,7 +111,7 @@ def effective_rig(rig: RigConfig, rate: int | None, mode: str | None, gains: lis
 
 def check_swing_up(rig: RigConfig) -> None:
     """A swing-up needs θ read through hanging (π) and a consistent catch/fall; else one line naming the key."""
-    from furuta_rt.control.swingup import SwingUpDesign
+    from furuta_rt.controller.swingup import SwingUpDesign
 
     s = rig.sensors
     reach = 32767 * s.theta_rad_per_count
@@ -173,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
     comp_source = ""
     warnings: list[str] = []
     if args.comp_from:
-        from furuta_rt.control.comp_from import compensation_from_report
+        from furuta_rt.controller.comp_from import compensation_from_report
 
         found = compensation_from_report(args.comp_from, rig.compensation, rig.name)
         rig = rig.model_copy(update={"compensation": found.compensation})

@@ -6,14 +6,14 @@ Pipeline (every physical model from furuta_rt.model / furuta_rt.sim):
 1. signals — the recording on a grid, θ reconstructed through the inverse Bessel path, everything
    (states, accelerations, the held command) seen through one Gaussian kernel;
 2. select — per equation of eq. 4 (arm, pendulum), forward selection of named effects on held-out
-   time blocks, with significance and admissibility checks (furuta_rt.diagnose.select);
+   time blocks, with significance and admissibility checks (furuta_rt.diagnose.regression.selection);
 3. refit — the nonlinear parameters (delay, deadzone, saturation, ΔJ) re-profiled jointly with the others;
 4. window stages — where the arm sticks, its breakaways (stiction, LuGre, actuator timing:
-   furuta_rt.diagnose.stickslip); where the largest commands are out of the regression's reach, the arm's
-   response to them (a torque limit: furuta_rt.diagnose.peaks), simulated with the shared Simulator;
+   furuta_rt.diagnose.stages.stickslip); where the largest commands are out of the regression's reach, the arm's
+   response to them (a torque limit: furuta_rt.diagnose.stages.peaks), simulated with the shared Simulator;
 5. look-alikes — each selected effect against its look-alike: if the data cannot tell them apart,
    both are reported with the experiment that would (gain ↔ inertia decided by the κ test when it can);
-6. prediction gate and metric (furuta_rt.diagnose.gate) — multi-step prediction of informative windows
+6. prediction gate and metric (furuta_rt.diagnose.stages.gate) — multi-step prediction of informative windows
    spread over the recording, each with parameters refitted away from it (blocked cross-validation); an
    effect whose presence makes that prediction significantly worse is moved to ``not_predictive``;
    the augmented model against the nominal one by a paired test over windows (improved / unchanged /
@@ -30,14 +30,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose import checks, gate, identify, latency, onset, peaks, stickslip, verdict, verify
-from furuta_rt.diagnose.decay import DecayFit, DecayResult, free_decay, is_free_decay
-from furuta_rt.diagnose.fitting import Stats, fit, paired_t
-from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, STILL_TICKS, Context
-from furuta_rt.diagnose.locate import Location, describe, locate
-from furuta_rt.diagnose.rest import bias_at_rest as rest_test
-from furuta_rt.diagnose.select import JOINT, EquationModel, Evaluation, Spec, Thresholds
-from furuta_rt.diagnose.signals import GaussianFilter, Prepared, prepare
+from furuta_rt.diagnose.judgement import verdict, verify
+from furuta_rt.diagnose.judgement.locate import Location, describe, locate
+from furuta_rt.diagnose.regression import identify
+from furuta_rt.diagnose.regression.fitting import Stats, fit, paired_t
+from furuta_rt.diagnose.regression.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, STILL_TICKS, Context
+from furuta_rt.diagnose.regression.selection import JOINT, EquationModel, Evaluation, Spec, Thresholds
+from furuta_rt.diagnose.regression.states import GaussianFilter, Prepared, prepare
+from furuta_rt.diagnose.stages import conventions, gate, latency, onset, peaks, stickslip
+from furuta_rt.diagnose.stages.decay import DecayFit, DecayResult, free_decay, is_free_decay
+from furuta_rt.diagnose.stages.rest import bias_at_rest as rest_test
 from furuta_rt.model.effects import EFFECT_TYPES, Effects
 from furuta_rt.recording import Recording
 
@@ -141,7 +143,7 @@ class Diagnosis:
     starts: onset.OnsetTiming | None = field(default=None, repr=False)  # the arm's starts from rest, when they timed it
     not_predictive: list[dict] = field(default_factory=list)  # effects the prediction gate moved out (gate.run)
     verdicts: dict[str, verdict.EquationVerdict] = field(default_factory=dict, repr=False)  # per equation
-    summary: str = ""  # one line: the verdicts (furuta_rt.diagnose.verdict)
+    summary: str = ""  # one line: the verdicts (furuta_rt.diagnose.judgement.verdict)
     identification: dict | None = None  # the arm's jointly calibrated parameters and identifiable combinations
 
     @property
@@ -448,7 +450,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     notes: list[str] = []
     rec = balancing_span(rec, notes)
     prep = prepare(rec, rig)
-    notes += prep.notes + (checks.conventions(prep, rig) if opts.check_conventions else [])
+    notes += prep.notes + (conventions.conventions(prep, rig) if opts.check_conventions else [])
     sigma_arm = opts.sigma_arm or arm_sigma(prep)
     ctx = Context.build(prep, rig, sigma_arm, opts.sigma_pend, opts.sigma_fine)
     ems: dict[str, EquationModel] = {}
@@ -701,7 +703,7 @@ def _support(em: EquationModel, selected: Evaluation, opts: Options, kind: str, 
 
 def _peak_windows(ctx: Context, found: list[Found], ems: dict[str, EquationModel], res: dict[str, EquationResult],
                   opts: Options) -> stickslip.WindowStage | None:
-    """The command-peak stage (furuta_rt.diagnose.peaks): an actuator limit, when the arm regression did not see
+    """The command-peak stage (furuta_rt.diagnose.stages.peaks): an actuator limit, when the arm regression did not see
     most of the largest commands."""
     current = {**ctx.known, **{f.name: f.params for f in found}}
     if not ctx.prep.commanded or "input_saturation" in current or peaks.covered(ctx.prep, ems[ARM].row_mask) >= peaks.MIN_COVERED:
@@ -718,7 +720,7 @@ def _peak_windows(ctx: Context, found: list[Found], ems: dict[str, EquationModel
 
 def _stick_windows(ctx: Context, found: list[Found], ems: dict[str, EquationModel], res: dict[str, EquationResult],
                    opts: Options, only: set[str] | None = None, lugre: bool = True) -> stickslip.WindowStage | None:
-    """The stick–slip stage (furuta_rt.diagnose.stickslip): the arm's sticks and breakaways decide on a breakaway
+    """The stick–slip stage (furuta_rt.diagnose.stages.stickslip): the arm's sticks and breakaways decide on a breakaway
     torque above the sliding level and time the actuator; without Coulomb friction found, on the sliding level too
     (from the arm regression's provisional fit of it)."""
     current = {**ctx.known, **{f.name: f.params for f in found}}
@@ -759,7 +761,7 @@ def _refit_arm_found(found: list[Found], ems: dict[str, EquationModel], res: dic
 
 def _onsets(ctx: Context, found: list[Found], ems: dict[str, EquationModel], res: dict[str, EquationResult],
             opts: Options) -> onset.OnsetTiming | None:
-    """The arm's starts from rest (furuta_rt.diagnose.onset), where no latency was found: with a total latency they
+    """The arm's starts from rest (furuta_rt.diagnose.stages.onset), where no latency was found: with a total latency they
     pin, the arm model is refitted at it (latency._refit_at) with the latency among its effects."""
     if any(f.name in latency.LATENCY_EFFECTS for f in found) or ems[ARM].n_rows < 20 * opts.thresholds.n_blocks:
         return None
@@ -829,7 +831,7 @@ def _use_decay(
 
 
 def _prediction_metric(ctx: Context, gated: gate.Gated, found: list[Found], keep: dict) -> dict:
-    """The held-out fit (furuta_rt.diagnose.gate): the nominal and the gated augmented model's predictions of the
+    """The held-out fit (furuta_rt.diagnose.stages.gate): the nominal and the gated augmented model's predictions of the
     informative windows, and the verdict of their paired comparison."""
     plan, nominal_p, aug_p = gated.plan, gated.nominal, gated.augmented
     try:

@@ -24,7 +24,7 @@ OPTIONAL = ("theta_dot",)
 def read_csv(path: str | Path, gaps: bool = False) -> Recording:
     """Read a recording; every problem is a UserError naming the file, row and column. With ``gaps``, empty or
     non-finite cells are read as NaN and time stamps need only not decrease (for a reader that repairs them, e.g.
-    furuta_rt.diagnose.signals.prepare)."""
+    furuta_rt.diagnose.regression.states.prepare)."""
     p = Path(path)
     if not p.exists() and not p.is_symlink():
         raise UserError(f"recording {p} does not exist")

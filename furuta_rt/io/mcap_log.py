@@ -227,7 +227,7 @@ def write_recording_mcap(
     so ``replay`` runs the controller over all of it. u_lin, u_comp, phi_dot_hat come from
     ``rec.extra`` when there; otherwise u_lin = u, u_comp = 0 and φ̂̇ = dφ/dt (central differences);
     a missing θ̇ is dθ/dt. Raw counts are the SI values through the rig's calibration (clipped)."""
-    from furuta_rt.control.controller import design_gains
+    from furuta_rt.controller.controller import design_gains
 
     n = len(rec)
     if n < 2:

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from furuta_rt.config import CompMode, RigConfig
-from furuta_rt.control.controller import Controller, Measurement
+from furuta_rt.controller.controller import Controller, Measurement
 from furuta_rt.errors import UserError
 from furuta_rt.experiment.plan import Excitation, plan_of_log
 from furuta_rt.io.mcap_read import LogData, require_ticks

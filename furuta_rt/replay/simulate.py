@@ -17,7 +17,7 @@ import numpy as np
 
 from firmware_protocol import StatusFlags
 from furuta_rt.config import CompMode, RigConfig
-from furuta_rt.control.controller import Controller, Measurement, design_gains
+from furuta_rt.controller.controller import Controller, Measurement, design_gains
 from furuta_rt.io.log_schema import device_time_base
 from furuta_rt.io.mcap_log import LogWriter, run_metadata
 from furuta_rt.model.effects import Effects

@@ -17,7 +17,7 @@ import math
 from dataclasses import dataclass
 
 from furuta_rt.config import SwingUpConfig
-from furuta_rt.control.swingup import wrap_angle
+from furuta_rt.controller.swingup import wrap_angle
 
 CALIBRATION_METADATA = "calibration"
 

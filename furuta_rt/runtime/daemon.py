@@ -290,7 +290,7 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
             pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="mock-start")
             mock_start = pool.submit(_start_mock, opts.mock_args)
             pool.shutdown(wait=False)
-        from furuta_rt.control.controller import Controller
+        from furuta_rt.controller.controller import Controller
         from furuta_rt.runtime.loop import ControlLoop, LoopSettings
         from furuta_rt.runtime.supervisor import Supervisor
 

@@ -38,7 +38,7 @@ from typing import Any, Protocol
 
 from firmware_protocol import COMMAND_FULL_SCALE, FAULT_MASK, CommandFlags, StatusFlags
 from furuta_rt.config import SwingUpConfig
-from furuta_rt.control.controller import Controller, Measurement
+from furuta_rt.controller.controller import Controller, Measurement
 from furuta_rt.runtime import signals as stop_signals
 from furuta_rt.runtime.calibration import CALIBRATION_METADATA, CalibrationWindow, StartupCalibration
 from furuta_rt.runtime.hardware import HardwareInterface, LinkLost

@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 
 from furuta_rt.config import CompMode, RigConfig
-from furuta_rt.control.controller import Controller
+from furuta_rt.controller.controller import Controller
 from furuta_rt.experiment.plan import Excitation
 from furuta_rt.model.coupling import Coupling
 from furuta_rt.model.effects import Effects

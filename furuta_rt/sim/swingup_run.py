@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.control.controller import Controller
+from furuta_rt.controller.controller import Controller
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 from furuta_rt.sim.simulator import Simulator

@@ -21,8 +21,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from furuta_rt.diagnose.fitting import Blocks, Fit, Stats, fit, fit_profiled, paired_t
-from furuta_rt.diagnose.library import ARM, CANDIDATES, Candidate, Context, InputPath, kink_supported
+from furuta_rt.diagnose.regression.fitting import Blocks, Fit, Stats, fit, fit_profiled, paired_t
+from furuta_rt.diagnose.regression.library import ARM, CANDIDATES, Candidate, Context, InputPath, kink_supported
 
 
 @dataclass(frozen=True)

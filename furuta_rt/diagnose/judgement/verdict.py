@@ -1,8 +1,8 @@
 """An honest verdict per equation of eq. 4, and where what stays unexplained sits.
 
 For each equation (arm, pendulum) the rms of the nominal residual, of the final (augmented) residual and of the
-sensor noise floor (furuta_rt.diagnose.noise) are compared, all relative to the equation's torque scale
-(furuta_rt.diagnose.locate.torque_scale). The test, on B contiguous time blocks of the equation's rows (which
+sensor noise floor (furuta_rt.diagnose.judgement.noise) are compared, all relative to the equation's torque scale
+(furuta_rt.diagnose.judgement.locate.torque_scale). The test, on B contiguous time blocks of the equation's rows (which
 accounts for the residual's correlation in time: the blocks, not the samples, are the independent units):
 
     d_b = ms(residual in block b) − K² · ms(noise floor draws in block b),   t = mean(d) / (sd(d)/√B)
@@ -16,7 +16,7 @@ estimate itself: on the simulator, where the true states are known, the Monte Ca
 true sensor part of the residual on every null case.
 
 Verdicts: ``consistent`` (the nominal residual is within the floor and no effect was selected), ``explained`` (it
-is not, or effects were selected — their own significance test, furuta_rt.diagnose.select, is more specific than the
+is not, or effects were selected — their own significance test, furuta_rt.diagnose.regression.selection, is more specific than the
 size test — and the augmented residual is within the floor), ``partly_explained`` (effects remove at least half of
 the excess over the floor and a significant part remains), ``unexplained`` (otherwise), ``not_assessed`` (too few
 usable rows). A residual whose size is within the floor but which follows a possible cause's signature beyond
@@ -29,7 +29,7 @@ FurutaPlant.inverse_dynamics to each plant parameter of the rig config, to a θ 
 each angle, and (arm) to a compliant motor–arm coupling's own column, −τ̈_command (``compliance_column``: beyond the
 rotor's inertia, which is a library effect) — possible causes for the person to check in the rig; never effects —,
 first among them "an unmodelled compliance or mode" when the gate's band test found effects of the equation whose
-fitted values depend on the frequency band (``mode_cause``; furuta_rt.diagnose.gate.band_check); the remainder's
+fitted values depend on the frequency band (``mode_cause``; furuta_rt.diagnose.stages.gate.band_check); the remainder's
 spectrum against the data's (``signature``) says in which band it sits (a narrow peak the data does not have points to an
 unmodelled compliance or mode).
 """
@@ -42,10 +42,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from furuta_rt.diagnose import noise
-from furuta_rt.diagnose.library import ARM, PEND, Context
-from furuta_rt.diagnose.locate import Location, describe, locate, torque_scale
-from furuta_rt.diagnose.signals import States
+from furuta_rt.diagnose.judgement import noise
+from furuta_rt.diagnose.judgement.locate import Location, describe, locate, torque_scale
+from furuta_rt.diagnose.regression.library import ARM, PEND, Context
+from furuta_rt.diagnose.regression.states import States
 from furuta_rt.model.parameters import LumpedParameters
 from furuta_rt.model.plant import FurutaPlant
 
@@ -363,7 +363,7 @@ def cause_columns(ctx: Context, equations: list[str]) -> list[tuple[str, str, Co
     (the derivative at a → 0), so that the fit, iterated, is exact for a change of any size. A reversed sign of θ or φ
     is the column ID(reversed) − ID, with coefficient −1 when reversed.
 
-    The columns are computed on the noise-reduced signals of the noise floor (furuta_rt.diagnose.noise.smoothed):
+    The columns are computed on the noise-reduced signals of the noise floor (furuta_rt.diagnose.judgement.noise.smoothed):
     on the measured ones they would share the residual's own noise (α·δθ̈ is in both the residual and the inertia
     column)."""
     out: list[tuple[str, str, Columns]] = []

@@ -14,8 +14,8 @@ import numpy as np
 import scipy.linalg
 
 from furuta_rt.config import RigConfig
-from furuta_rt.control.controller import design_gains, observer_design
-from furuta_rt.control.design import actuated_linearization
+from furuta_rt.controller.controller import design_gains, observer_design
+from furuta_rt.controller.design import actuated_linearization
 from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.sensors import BesselPath
 

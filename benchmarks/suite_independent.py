@@ -197,7 +197,7 @@ def simulate(case: Case, duration: float, noise: bool = True) -> Recording:
 
 def generate(case: Case, duration: float, cache: Path | None = None) -> Recording:
     """The case's recording (from ``cache`` when there: suite.cached)."""
-    from furuta_rt.diagnose.suite import cached
+    from benchmarks.suite import cached
 
     key = hashlib.sha1(repr(("independent", case, duration, INDEPENDENT_CACHE_VERSION)).encode()).hexdigest()[:16]
     return cached(key, cache, lambda: simulate(case, duration))

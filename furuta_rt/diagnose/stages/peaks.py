@@ -7,7 +7,7 @@ regression, while the arm's motion after them shows it plainly (clipped, the arm
 
 Windows start PEAK_LEAD before each episode of large commands (|u| at or above its PEAK_QUANTILE), the arm's
 starting velocity fitted to that lead-in, and run PEAK_TAIL past it. The arm is simulated as in the stick
-windows (furuta_rt.diagnose.stickslip: the shared Simulator with the recorded commands, the pendulum
+windows (furuta_rt.diagnose.stages.stickslip: the shared Simulator with the recorded commands, the pendulum
 teacher-forced, the error outside the measured encoder cells). The limit is chosen on a grid of the command's
 own levels by blocked cross-validation over the windows and accepted by the regression's rules, its
 significance judged by the blocks' paired improvement (a limit has no "departure" to test). Run only when the
@@ -23,9 +23,9 @@ from dataclasses import replace
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose.select import Thresholds
-from furuta_rt.diagnose.signals import Prepared, States
-from furuta_rt.diagnose.stickslip import Window, WindowStage, profile, window_errors
+from furuta_rt.diagnose.regression.selection import Thresholds
+from furuta_rt.diagnose.regression.states import Prepared, States
+from furuta_rt.diagnose.stages.stickslip import Window, WindowStage, profile, window_errors
 from furuta_rt.model.effects import Effects
 
 PEAK_QUANTILE = 0.99

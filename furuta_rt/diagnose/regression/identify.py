@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from furuta_rt.diagnose.fitting import Stats, fit
-from furuta_rt.diagnose.library import ARM, Context
-from furuta_rt.diagnose.select import EquationModel, Evaluation
+from furuta_rt.diagnose.regression.fitting import Stats, fit
+from furuta_rt.diagnose.regression.library import ARM, Context
+from furuta_rt.diagnose.regression.selection import EquationModel, Evaluation
 from furuta_rt.model.friction import Viscous
 
 PINNED_REL_SE = 0.1

@@ -1,6 +1,6 @@
 """Independent recordings of voltage-driven DC-motor rigs for the `diagnose` benchmark (scripts/bench_independent).
 
-The second held-out group beside furuta_rt.diagnose.suite_independent's thesis rig: rigs shaped like the real ones
+The second held-out group beside benchmarks.suite_independent's thesis rig: rigs shaped like the real ones
 `diagnose` meets — a QUBE-Servo 2 and the macstepien BLDC rig, driven by voltage, encoders on both joints, a command
 latency the config does not state, swing-ups, a gross torque-per-volt error — built, like that group, from none of
 this project's simulation code:
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from furuta_rt.diagnose.suite_independent import G, Lagrangian, lqr_about_upright, rk4
+from benchmarks.suite_independent import G, Lagrangian, lqr_about_upright, rk4
 from furuta_rt.recording import Recording
 
 RATE = 500.0
@@ -280,7 +280,7 @@ DC_CACHE_VERSION = 1
 
 def generate(case: DCCase, duration: float, cache: Path | None = None) -> Recording:
     """The case's recording (from ``cache`` when there: suite.cached)."""
-    from furuta_rt.diagnose.suite import cached
+    from benchmarks.suite import cached
 
     key = hashlib.sha1(repr(("independent-dc", case, duration, DC_CACHE_VERSION)).encode()).hexdigest()[:16]
     return cached(key, cache, lambda: simulate(case, duration))

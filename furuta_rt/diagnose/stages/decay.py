@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose.signals import Prepared
+from furuta_rt.diagnose.regression.states import Prepared
 from furuta_rt.model.friction import Coulomb, Viscous
 from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.rig import PENDULUM_COULOMB_EPSILON

@@ -19,12 +19,12 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from furuta_rt.diagnose.decay import DecayResult
 from furuta_rt.diagnose.engine import Diagnosis
-from furuta_rt.diagnose.locate import features
-from furuta_rt.diagnose.page import MARKER, html_page
-from furuta_rt.diagnose.stickslip import WindowStage, simulate_arm
-from furuta_rt.diagnose.verify import quiet, simulate_window
+from furuta_rt.diagnose.judgement.locate import features
+from furuta_rt.diagnose.judgement.verify import quiet, simulate_window
+from furuta_rt.diagnose.report.page import MARKER, html_page
+from furuta_rt.diagnose.stages.decay import DecayResult
+from furuta_rt.diagnose.stages.stickslip import WindowStage, simulate_arm
 from furuta_rt.errors import UserError
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel

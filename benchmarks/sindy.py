@@ -113,7 +113,7 @@ def fit_sindy_residual(rec: Recording, rig: RigConfig, threshold: float = 0.2, s
     motion needs) minus the nominal torques (the rig's actuator on the command held over its configured latency),
     regressed with the same candidates and thresholding as ``fit_sindy`` (degree-1 polynomials in θ, θ̇, φ, φ̇, u
     and sgn of each), each equation scaled to unit rms. To isolate the regression from the signal processing it
-    gets the states ``diagnose`` uses (furuta_rt.diagnose.signals: θ through the inverse of the rig's θ path,
+    gets the states ``diagnose`` uses (furuta_rt.diagnose.regression.states: θ through the inverse of the rig's θ path,
     derivatives and the held command through one Gaussian kernel of width ``sigma``). Its coefficients are
     torques, so they read directly as effects (an arm inertia error would need φ̈ among the candidates: like
     ``fit_sindy``, it has none; nor has it a delay)."""
@@ -121,7 +121,7 @@ def fit_sindy_residual(rec: Recording, rig: RigConfig, threshold: float = 0.2, s
 
     import pysindy as ps
 
-    from furuta_rt.diagnose.signals import prepare
+    from furuta_rt.diagnose.regression.states import prepare
     from furuta_rt.model.rig import RigModel
 
     t0 = time.perf_counter()

@@ -1,6 +1,6 @@
 """The prediction gate and the held-out fit metric (issue 13): nothing that predicts worse is reported as found.
 
-Windows (furuta_rt.diagnose.verify): the informative ones, spread over the whole recording, horizon from the
+Windows (furuta_rt.diagnose.judgement.verify): the informative ones, spread over the whole recording, horizon from the
 unstable pole of eq. 6. Blocked cross-validation: the windows, in time order, are dealt to N_FOLDS interleaved folds;
 each fold's windows are predicted with the effects refitted (furuta_rt.diagnose.engine.refit on an EquationModel with
 a row filter) on the recording outside its windows and a margin around each, so no window is predicted with
@@ -41,12 +41,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose import verify
-from furuta_rt.diagnose.fitting import paired_t
-from furuta_rt.diagnose.library import CANDIDATES, Context, nominal_latency
-from furuta_rt.diagnose.select import EquationModel, Evaluation, Spec
-from furuta_rt.diagnose.signals import MAX_SIGMA
-from furuta_rt.diagnose.stickslip import WindowStage
+from furuta_rt.diagnose.judgement import verify
+from furuta_rt.diagnose.regression.fitting import paired_t
+from furuta_rt.diagnose.regression.library import CANDIDATES, Context, nominal_latency
+from furuta_rt.diagnose.regression.selection import EquationModel, Evaluation, Spec
+from furuta_rt.diagnose.regression.states import MAX_SIGMA
+from furuta_rt.diagnose.stages.stickslip import WindowStage
 from furuta_rt.model.effects import Effects
 
 if TYPE_CHECKING:
@@ -274,7 +274,7 @@ def band_check(ctx: Context, ems: dict[str, EquationModel], res: dict[str, Equat
 
 
 def _above_floor(ctx: Context, em: EquationModel, r: EquationResult, opts: Options) -> bool:
-    from furuta_rt.diagnose.verdict import above_floor
+    from furuta_rt.diagnose.judgement.verdict import above_floor
 
     ev = r.selected
     return above_floor(ctx, em, em.residual(ev.spec, ev.fit.coef), opts.seed)
@@ -285,7 +285,7 @@ def _explains_alone(ctx: Context, em: EquationModel, r: EquationResult, name: st
     noise floor (the selected model against it without ``name``, verdict.removes_excess): such an effect is what is
     missing, not a stand-in for it (a pendulum damping taking 2.6 % of the torque scale to 0.2 % on a swing-up where
     the floor is 0.1 %), and stays in a suspect equation without having to predict better."""
-    from furuta_rt.diagnose.verdict import removes_excess
+    from furuta_rt.diagnose.judgement.verdict import removes_excess
 
     ev = r.selected
     if name not in ev.spec.effects:
@@ -312,8 +312,8 @@ def _band_reason(b: dict) -> str:
 def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResult], found: list[Found],
         opts: Options, notes: list[str], stick: WindowStage | None = None, peak: WindowStage | None = None) -> Gated:
     """The prediction gate; ``res`` is updated in place (each equation refitted without the effects moved out)."""
-    from furuta_rt.diagnose import peaks, stickslip
     from furuta_rt.diagnose.engine import EquationResult, _found, refit
+    from furuta_rt.diagnose.stages import peaks, stickslip
 
     plan = make_plan(ctx.prep, ctx.rig, opts.max_windows, opts.horizon)
     stages = [(s, least) for s, least in ((stick, stickslip.MIN_WINDOWS), (peak, peaks.MIN_PEAK_WINDOWS))

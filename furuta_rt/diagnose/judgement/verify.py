@@ -21,9 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.control.controller import Controller, Measurement
-from furuta_rt.diagnose.fitting import paired_t
-from furuta_rt.diagnose.signals import Prepared, States
+from furuta_rt.controller.controller import Controller, Measurement
+from furuta_rt.diagnose.regression.fitting import paired_t
+from furuta_rt.diagnose.regression.states import Prepared, States
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 from furuta_rt.recording import Recording

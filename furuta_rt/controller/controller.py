@@ -9,7 +9,7 @@ One call of ``Controller.update`` per tick (read → **update** → write):
     u    = sat(u_lin + F̂)
     observer predicted with the net torque u − F̂ that reaches the arm after the command delay
 
-With a swing-up (``rig.swing_up.enabled``, furuta_rt.control.swingup) the same ``update`` starts in
+With a swing-up (``rig.swing_up.enabled``, furuta_rt.controller.swingup) the same ``update`` starts in
 swinging-up mode: the energy pump replaces u_lin until the catch region, balancing takes over there (the observer
 has tracked throughout, its φ set from the measurement; the compensator runs on), and a fall hands back. The
 observer then sees the gravity coupling at θ as sin θ cos θ (θ near upright, exact at hanging).
@@ -29,16 +29,16 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from furuta_rt.config import CompMode, RigConfig
-from furuta_rt.control.compensation import Compensator
-from furuta_rt.control.design import (
+from furuta_rt.controller.compensation import Compensator
+from furuta_rt.controller.design import (
     actuated_linearization,
     lqr_gains,
     place_gains,
     pole_placement_gains,
     target_poles,
 )
-from furuta_rt.control.observer import ArmObserver, ArmObserverDesign
-from furuta_rt.control.swingup import SwingUp, SwingUpDesign, wrap_angle
+from furuta_rt.controller.observer import ArmObserver, ArmObserverDesign
+from furuta_rt.controller.swingup import SwingUp, SwingUpDesign, wrap_angle
 from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.sensors import Measurement
 

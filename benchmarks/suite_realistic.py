@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.control.controller import design_gains
+from furuta_rt.controller.controller import design_gains
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 from furuta_rt.model.sensors import quantise

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose.signals import Prepared, States
+from furuta_rt.diagnose.regression.states import Prepared, States
 from furuta_rt.errors import UserError
 from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.rig import RigModel

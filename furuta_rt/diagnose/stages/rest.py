@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from furuta_rt.diagnose.library import STILL_TICKS, Context
-from furuta_rt.diagnose.select import Evaluation
+from furuta_rt.diagnose.regression.library import STILL_TICKS, Context
+from furuta_rt.diagnose.regression.selection import Evaluation
 
 REST_Z = 4.0  # the bias beyond the model's stick limit, in its standard errors
 REST_COUNTS = 10.0  # ... and the turn it would give over the longest rest, in encoder counts

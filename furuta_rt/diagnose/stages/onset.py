@@ -1,6 +1,6 @@
 """The actuator's timing read from the arm's starts (issue 14, item 2: the command latency measured).
 
-The latency stage (furuta_rt.diagnose.latency) times the actuator on the arm equation's rows. Where the arm rests and
+The latency stage (furuta_rt.diagnose.stages.latency) times the actuator on the arm equation's rows. Where the arm rests and
 a command step starts it — the commonest bench test, one voltage step from rest — those rows carry almost no timing:
 the rows at the start are left out (the kernel reaches back into the rest), and what follows is a smooth run-up whose
 phase a delay and an inertia trade. The start itself is sharp. With the command stepping at tick k, the arm leaves its
@@ -9,7 +9,7 @@ on a rig whose encoder resolves a few counts per tick of travel, L is pinned to 
 
 Per start — a command step of at least STEP_SHARE of the largest command, the arm still (within REST_COUNTS) for
 REST_SECONDS before it and leaving by ONSET_COUNTS within ONSET_SECONDS after — the arm is simulated from rest with
-the model found (furuta_rt.diagnose.stickslip.simulate_arm: eq. 4 with the shared friction and actuator chain, the
+the model found (furuta_rt.diagnose.stages.stickslip.simulate_arm: eq. 4 with the shared friction and actuator chain, the
 pendulum teacher-forced) at total latencies on a quarter-tick grid, from the step until it has moved ONSET_COUNTS, and
 compared with the measured counts. A latency is *consistent* with a start when the simulated arm never strays more
 than MAX_STRAY counts from the measured count (the encoder's half count, with a quarter count of room for the model's
@@ -31,11 +31,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose.fitting import vertex
-from furuta_rt.diagnose.latency import LATENCY_EFFECTS, effect_for
-from furuta_rt.diagnose.signals import Prepared, States
-from furuta_rt.diagnose.stickslip import Window, simulate_arm
-from furuta_rt.diagnose.verify import quiet
+from furuta_rt.diagnose.judgement.verify import quiet
+from furuta_rt.diagnose.regression.fitting import vertex
+from furuta_rt.diagnose.regression.states import Prepared, States
+from furuta_rt.diagnose.stages.latency import LATENCY_EFFECTS, effect_for
+from furuta_rt.diagnose.stages.stickslip import Window, simulate_arm
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 

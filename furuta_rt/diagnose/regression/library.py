@@ -20,7 +20,7 @@ from functools import cached_property
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose.signals import Prepared, States
+from furuta_rt.diagnose.regression.states import Prepared, States
 from furuta_rt.model.actuator import Actuator
 from furuta_rt.model.friction import Coulomb, LuGre, Viscous
 from furuta_rt.model.plant import FurutaPlant

@@ -19,7 +19,7 @@ the measured encoder cells (the count ± half a count), summed over its ticks, w
 the first cell profiled out: motion within a count is invisible to the encoder, and counts as no error.
 
 Parameters are chosen on these windows the way the regression chooses nonlinear ones
-(furuta_rt.diagnose.fitting): on a grid, with blocked cross-validation over windows in time order (each
+(furuta_rt.diagnose.regression.fitting): on a grid, with blocked cross-validation over windows in time order (each
 block's error at the value best on the other blocks), and accepted by the same rules (held-out gain,
 BIC penalty on the number of windows, significance of the departure from the model without it).
 """
@@ -32,10 +32,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose.fitting import paired_t, vertex
-from furuta_rt.diagnose.select import Thresholds
-from furuta_rt.diagnose.signals import Prepared, States
-from furuta_rt.diagnose.verify import quiet, start_simulator
+from furuta_rt.diagnose.judgement.verify import quiet, start_simulator
+from furuta_rt.diagnose.regression.fitting import paired_t, vertex
+from furuta_rt.diagnose.regression.selection import Thresholds
+from furuta_rt.diagnose.regression.states import Prepared, States
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 

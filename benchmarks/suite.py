@@ -309,7 +309,7 @@ class CaseScore:
     seconds: float
     reported: list[dict] = field(default_factory=list)
     ambiguities: list[dict] = field(default_factory=list)
-    verdicts: dict[str, str] = field(default_factory=dict)  # equation → verdict (furuta_rt.diagnose.verdict)
+    verdicts: dict[str, str] = field(default_factory=dict)  # equation → verdict (furuta_rt.diagnose.judgement.verdict)
     fit_verdict: str = ""  # the diagnosis's paired verdict on the held-out prediction (improved/unchanged/worse/diverges)
 
     @property
@@ -319,7 +319,7 @@ class CaseScore:
     @property
     def expected_verdicts(self) -> dict[str, str]:
         """The right verdict per equation: `explained` where an injected effect acts, `consistent` elsewhere."""
-        from furuta_rt.diagnose.library import ARM, CANDIDATES, PEND
+        from furuta_rt.diagnose.regression.library import ARM, CANDIDATES, PEND
 
         acts = {CANDIDATES[n].equation if n in CANDIDATES else ARM for n in self.case.injected}
         return {eq: "explained" if eq in acts else "consistent" for eq in (ARM, PEND)}
@@ -419,7 +419,7 @@ LATENCY = ("command_latency", "input_delay")
 class RealisticCase:
     """A recording of a voltage-driven rig shaped like ``shape`` (a shipped rig), whose true physics is ``effects``
     on top of it and whose command acts ``latency_ticks`` after the sample (the config says its
-    ``command_delay_ticks``), driven by ``excitation`` (furuta_rt.diagnose.suite_realistic)."""
+    ``command_delay_ticks``), driven by ``excitation`` (benchmarks.suite_realistic)."""
 
     name: str
     shape: str
@@ -467,7 +467,7 @@ def realistic_cases() -> list[RealisticCase]:
     The first eleven are the in-sample part (looked at while building); the ``held_out`` ones (other seeds, sizes
     and combinations) are listed and printed apart and are not tuned on. Held-out cases that a fix was made on are
     moved to the in-sample part and marked so (201, 205, 211 and 401: fifth session); 207–214 were added then, as a
-    new held-out set (213 and 214 after the arm-starts stage, furuta_rt.diagnose.onset, was built on 211 and 401)."""
+    new held-out set (213 and 214 after the arm-starts stage, furuta_rt.diagnose.stages.onset, was built on 211 and 401)."""
     spring = ("arm_spring.k=0.002", "arm_spring.phi0=0.1", "arm_coulomb.Fc=0.002")
     spring_m = ("arm_spring.k=0.01", "arm_spring.phi0=-0.2", "arm_coulomb.Fc=0.006")
     return [
@@ -522,7 +522,7 @@ def gross_gain_cases() -> list[RealisticCase]:
 
 def generate_realistic(case: RealisticCase, cache: Path | None = None) -> Recording:
     """The case's recording (from the cache when there)."""
-    from furuta_rt.diagnose.suite_realistic import simulate
+    from benchmarks.suite_realistic import simulate
 
     def make() -> Recording:
         rec = simulate(load_rig(case.shape), case.shape, effects_from_assignments(list(case.effects)),

@@ -1,6 +1,6 @@
 """Where the mismatch lives: which equation, which operating regions, which times.
 
-Works on the inverse-dynamics residuals of the nominal model (furuta_rt.diagnose.library), so it is the
+Works on the inverse-dynamics residuals of the nominal model (furuta_rt.diagnose.regression.library), so it is the
 same for an unstable plant under feedback and for open-loop data: each equation's residual is compared
 with the torque scale of that equation, correlated with the signals that name physics (sgn φ̇, φ̇, φ,
 u, u̇ — the command torque and its rate, θ, θ̇, θ̈, φ̈, φ̇², sin θ cos θ φ̇², sgn θ̇), split by operating region (arm reversals / low
@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from furuta_rt.diagnose.library import ARM, Context
+from furuta_rt.diagnose.regression.library import ARM, Context
 
 
 @dataclass
@@ -105,7 +105,7 @@ def locate(ctx: Context, equation: str, y: np.ndarray, rows: np.ndarray) -> Loca
 
 
 def describe(loc: Location, selected: list[str], verdict: str | None = None) -> str:
-    """One sentence for one equation. It says "consistent" only when the verdict (furuta_rt.diagnose.verdict) is:
+    """One sentence for one equation. It says "consistent" only when the verdict (furuta_rt.diagnose.judgement.verdict) is:
     no effect selected is not an all-clear."""
     eq = "arm equation" if loc.equation == ARM else "pendulum equation"
     if loc.text:

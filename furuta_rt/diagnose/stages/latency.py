@@ -26,9 +26,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from furuta_rt.diagnose.fitting import Stats, fit, fit_profiled
-from furuta_rt.diagnose.library import ARM, CANDIDATES
-from furuta_rt.diagnose.select import EquationModel, Evaluation, Spec
+from furuta_rt.diagnose.regression.fitting import Stats, fit, fit_profiled
+from furuta_rt.diagnose.regression.library import ARM, CANDIDATES
+from furuta_rt.diagnose.regression.selection import EquationModel, Evaluation, Spec
 
 LATENCY_EFFECTS = ("input_delay", "command_latency")
 MIN_TICKS = 0.25  # a departure from the config's latency smaller than this is not named

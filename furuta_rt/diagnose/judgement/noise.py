@@ -2,7 +2,7 @@
 
 The residual of eq. 4 is computed from states reconstructed from the measurements (encoder counts of φ, the
 θ channel through its ADC — and through the inverse Bessel path when the rig has one — every signal seen
-through the equation's Gaussian kernel, furuta_rt.diagnose.signals). Even with the right model it is not
+through the equation's Gaussian kernel, furuta_rt.diagnose.regression.states). Even with the right model it is not
 zero: the encoder's and the ADC's quantisation and the ADC noise, differentiated twice through the kernel,
 reach it through the accelerations (α θ̈, γ cos θ φ̈, M22 φ̈ …).
 
@@ -21,8 +21,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from furuta_rt.diagnose.library import ARM, Context
-from furuta_rt.diagnose.signals import GaussianFilter, Prepared, States
+from furuta_rt.diagnose.regression.library import ARM, Context
+from furuta_rt.diagnose.regression.states import GaussianFilter, Prepared, States
 from furuta_rt.model.sensors import quantise as _quantise
 
 DRAWS = 4  # Monte Carlo draws of the sensor noise

@@ -1,0 +1,1 @@
+"""The diagnosis for people: text, report directory and figures (render), the HTML page (page)."""
