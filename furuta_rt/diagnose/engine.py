@@ -31,16 +31,25 @@ import numpy as np
 
 from furuta_rt.config import RigConfig
 from furuta_rt.diagnose.judgement import verdict, verify
-from furuta_rt.diagnose.judgement.locate import Location, describe, locate
+from furuta_rt.diagnose.judgement.locate import describe, locate
 from furuta_rt.diagnose.regression import identify
 from furuta_rt.diagnose.regression.fitting import Stats, fit, paired_t
 from furuta_rt.diagnose.regression.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, STILL_TICKS, Context
-from furuta_rt.diagnose.regression.selection import JOINT, EquationModel, Evaluation, Spec, Thresholds
+from furuta_rt.diagnose.regression.selection import JOINT, EquationModel, Evaluation
 from furuta_rt.diagnose.regression.states import GaussianFilter, Prepared, prepare
 from furuta_rt.diagnose.stages import conventions, gate, latency, onset, peaks, stickslip
 from furuta_rt.diagnose.stages.decay import DecayFit, DecayResult, free_decay, is_free_decay
+from furuta_rt.diagnose.stages.findings import (
+    LUGRE_CONTAINS,
+    EquationResult,
+    Found,
+    Options,
+    effects_of,
+    found_in,
+    refit,
+)
 from furuta_rt.diagnose.stages.rest import bias_at_rest as rest_test
-from furuta_rt.model.effects import EFFECT_TYPES, Effects
+from furuta_rt.model.effects import Effects
 from furuta_rt.recording import Recording
 
 EXPERIMENTS: dict[frozenset[str], str] = {
@@ -72,53 +81,6 @@ EXPERIMENTS: dict[frozenset[str], str] = {
         "spring does not) and a slow arm sweep (a spring needs the torque k(φ − φ0))"
     ),
 }
-
-
-@dataclass(frozen=True)
-class Options:
-    sigma_arm: float | None = None  # s, Gaussian width for the arm equation (None: the encoder decides)
-    sigma_pend: float = 0.05  # s, for the pendulum equation (its noise is the encoder's, through γ·φ̈)
-    sigma_fine: float = 0.005  # s, for nonlinear regressors (signs) and initial states
-    thresholds: Thresholds = field(default_factory=Thresholds)
-    horizon: float | None = None  # s, prediction window (None: from the unstable pole of eq. 6, verify.horizon_ticks)
-    max_windows: int = 40
-    closed_loop: bool = True
-    stick_windows: bool = True  # the stick–slip stage (breakaway torque, actuator timing from the sticks)
-    substep_hz: float = 2000.0  # physics substeps of the verification simulations
-    ambiguity_t: float = 3.0  # paired t on the blocks above which two look-alikes are told apart ...
-    ambiguity_gain: float = 0.01  # ... when one also fits better by at least this (relative held-out error)
-    seed: int = 0
-    check_conventions: bool = True  # refuse a recording whose signs or angle units are clearly not the rig's
-
-
-@dataclass
-class Found:
-    name: str
-    equation: str
-    params: dict[str, float]
-    se: dict[str, float]
-    t: float
-    cv_gain: float  # held-out error reduction this effect brings (relative, given the others)
-    source: str = "inverse dynamics"  # or "free decay" (energy lost per swing)
-    pinned: bool = True  # the data pins this parameter alone (identify.pinning), not only a combination of it
-    combinations: list[dict] = field(default_factory=list)  # the pinned combinations it enters, when it is not pinned
-
-    def as_json(self) -> dict:
-        return {"name": self.name, "params": self.params}
-
-
-@dataclass
-class EquationResult:
-    equation: str
-    rows: int
-    nominal: Evaluation
-    selected: Evaluation
-    trace: list[dict]
-    location: Location
-
-    @property
-    def gain(self) -> float:
-        return (self.nominal.cv - self.selected.cv) / self.nominal.cv if self.nominal.cv else 0.0
 
 
 @dataclass
@@ -212,28 +174,7 @@ def plain(x: object) -> object:
     return x
 
 
-def effects_of(found: list[Found]) -> Effects:
-    return Effects.model_validate({f.name: f.params for f in found})
-
-
 # ------------------------------------------------------------------------------------ stages
-def refit(em: EquationModel, spec: Spec) -> Evaluation:
-    """The effects of ``spec`` fitted on ``em``'s rows: each nonlinear parameter re-profiled with the others
-    at their current values (one pass of coordinate descent), then the linear ones by least squares."""
-    nl_t: dict[str, float] = {}
-    nl_se: dict[str, dict[str, float]] = {}
-    for name in spec.effects:
-        if CANDIDATES[name].nonlinear:
-            ev = em.evaluate_with(spec.without(name), name)
-            spec = ev.spec
-            nl_t[name] = ev.t_stat[name]
-            nl_se[name] = ev.se[name]
-    final = em.evaluate(spec)
-    final.t_stat.update(nl_t)
-    final.se.update(nl_se)
-    return final
-
-
 def check_lookalikes(
     ems: dict[str, EquationModel], res: dict[str, EquationResult], opts: Options
 ) -> tuple[list[dict], list[dict], dict[str, Evaluation]]:
@@ -463,7 +404,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
                 + ("(the arm hardly moves: arm-side effects cannot be assessed; excite the arm, e.g. an arm reference)"
                    if eq == ARM else "")
             )
-    found = [f for eq in res for f in _found(ems[eq], res[eq], notes)]
+    found = [f for eq in res for f in found_in(ems[eq], res[eq], notes)]
     stick = _stick_windows(ctx, found, ems, res, opts, lugre=False) if opts.stick_windows else None
     found = _retimed(stick, found, ems, res)
     if stick is not None and {"arm_stiction", "arm_lugre"} & set(stick.added):
@@ -473,11 +414,11 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
         em, r = _select(ctx, ARM, opts, ctx.clear_of(ctx.stays(STICTION_STILL_TICKS)))
         if "arm_coulomb" in r.selected.spec.effects and em.n_rows >= max(RESELECT_MIN_ROWS, RESELECT_MIN_SHARE * ems[ARM].n_rows):
             ems[ARM], res[ARM] = em, r
-            found = [f for eq in res for f in _found(ems[eq], res[eq], [])]
+            found = [f for eq in res for f in found_in(ems[eq], res[eq], [])]
             notes.append(f"arm equation: with a breakaway above the sliding level, stays of ≥ {STICTION_STILL_TICKS} ticks at "
                          f"one encoder count are left out too (they may be short sticks); {em.n_rows} rows")
         else:  # the regression's effects as they were (a delay the windows re-timed among them)
-            found = [f for eq in res for f in _found(ems[eq], res[eq], [])]
+            found = [f for eq in res for f in found_in(ems[eq], res[eq], [])]
         first, stick = stick, _stick_windows(ctx, found, ems, res, opts, only=set(stick.added))
         found = _retimed(stick, found, ems, res)
         if stick is not None:  # what the first reading compared stays on record
@@ -493,7 +434,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
         r = res[eq]
         final = completed_pairs(ems[eq], significant(ems[eq], refit(ems[eq], alt.spec), r.trace), r.trace)
         res[eq] = EquationResult(eq, r.rows, r.nominal, final, r.trace, r.location)
-        found = [f for f in found if not (f.equation == eq and f.source == "inverse dynamics")] + _found(ems[eq], res[eq], [])
+        found = [f for f in found if not (f.equation == eq and f.source == "inverse dynamics")] + found_in(ems[eq], res[eq], [])
     if stick is not None:
         ambiguities += stick.ambiguities
         lookalikes += stick.lookalikes
@@ -652,42 +593,7 @@ def _pair_pays(em: EquationModel, ev: Evaluation, pair: tuple[str, str]) -> bool
     return physical and gain >= 2 * em.th.min_gain
 
 
-def _found(em: EquationModel, r: EquationResult, notes: list[str]) -> list[Found]:
-    """The selected effects of one equation, each with the held-out gain it brings given the others."""
-    out = []
-    ev = r.selected
-    for name in ev.spec.effects:
-        if name in LUGRE_CONTAINS and "arm_lugre" in ev.spec.effects:
-            continue  # arm_lugre carries the Coulomb level and the viscous term
-        kind = CANDIDATES[name].nonlinear
-        if kind is not None:
-            grid = em.grid(kind)
-            value = {"inertia": ev.spec.d_inertia, "vs": ev.spec.vs}.get(kind, getattr(ev.spec.path, kind, None))
-            step = float(np.median(np.diff(grid)))
-            if value is not None and (value <= grid[0] + step or value >= grid[-1] - step):
-                notes.append(f"{name}: {ev.params[name]} is at the edge of the range searched; the data asks for "
-                             "more than the library's range (treat it as a sign of other missing physics)")
-        without = em.evaluate(ev.spec.without(name))
-        gain = (without.cv - ev.cv) / without.cv if without.cv else 0.0
-        params = _within_bounds(name, ev.params[name])
-        out.append(Found(name, r.equation, params, ev.se.get(name, {}), float(ev.t_stat.get(name, 0.0)), gain))
-    return out
-
-
-LUGRE_CONTAINS = ("arm_coulomb", "arm_viscous")
 RESELECT_MIN_ROWS, RESELECT_MIN_SHARE = 1000, 0.25  # the arm regression without short stays, if this much is left
-
-
-def _within_bounds(name: str, params: dict[str, float]) -> dict[str, float]:
-    """Totals put back inside the vocabulary's bounds (≥ 0 where it says so): with the rig's own effect in the nominal
-    model, "the data has none of it" is a departure of −value, whose fit scatters around 0 either side."""
-    out = dict(params)
-    for key, info in EFFECT_TYPES[name].model_fields.items():
-        if key in out and any(getattr(m, "ge", None) == 0 for m in info.metadata):
-            out[key] = max(out[key], 0.0)
-    if name == "arm_spring" and out["k"] == 0.0:
-        out["phi0"] = 0.0  # no spring: its rest angle means nothing
-    return out
 
 
 def _support(em: EquationModel, selected: Evaluation, opts: Options, kind: str, value: float) -> float | None:
@@ -754,7 +660,7 @@ def _refit_arm_found(found: list[Found], ems: dict[str, EquationModel], res: dic
     """``found`` with the arm regression's effects read again from its refitted model ``res[ARM]`` (``skip``: left
     as found, e.g. a delay a window stage reports; ``new``: effects the refit added, appended), every other effect as
     it was (one a window stage replaced stays out)."""
-    fresh = {f.name: f for f in _found(ems[ARM], res[ARM], []) if f.name not in skip}
+    fresh = {f.name: f for f in found_in(ems[ARM], res[ARM], []) if f.name not in skip}
     out = [fresh.get(f.name, f) if f.equation == ARM and f.source == "inverse dynamics" else f for f in found]
     return out + [fresh[n] for n in new if n in fresh]
 

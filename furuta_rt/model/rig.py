@@ -1,20 +1,56 @@
 """The physical rig as the simulator sees it: eq. 4 plant + friction + spring + actuator + sensors.
 
-Built from a RigConfig and a set of Effects (furuta_rt.model.effects); the same builder serves the
-simulator, hil_mock and the diagnosis, so an effect means the same physics everywhere.
+Built from a rig description (furuta_rt.config.RigConfig satisfies RigSpec) and a set of Effects
+(furuta_rt.model.effects); the same builder serves the simulator, hil_mock and the diagnosis, so an effect means the
+same physics everywhere. The model states what it reads of a configuration (the protocols below) rather than importing
+the configuration layer above it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
-from furuta_rt.config import RigConfig
 from furuta_rt.model.actuator import Actuator, DCMotor
 from furuta_rt.model.coupling import Coupling
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.friction import Coulomb, CoulombStiction, JointFriction, LuGre, Viscous
+from furuta_rt.model.parameters import LumpedParameters
 from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.sensors import BesselPath, Calibration
+
+
+class PlantSpec(Protocol):
+    @property
+    def arm_inertia(self) -> float: ...
+
+
+class ActuatorSpec(Protocol):
+    kind: str
+    Kt: float | None
+    R: float | None
+    Ke: float | None
+
+
+class SensorSpec(Protocol):
+    bessel_cutoff: float | None
+    encoder_counts_per_rev: int
+    theta_rad_per_count: float
+    theta_dot_rad_s_per_count: float
+    theta_noise: float
+    theta_dot_noise: float
+    theta_wraps: bool
+
+
+class RigSpec(Protocol):
+    """What the rig model reads of a rig's configuration (furuta_rt.config.RigConfig)."""
+
+    effects: Effects
+    plant: PlantSpec
+    actuator: ActuatorSpec
+    sensors: SensorSpec
+
+    def lumped(self) -> LumpedParameters: ...
 
 # Pendulum-pivot Coulomb friction is simulated with eq. 1's smoothed transition (rad/s).
 PENDULUM_COULOMB_EPSILON = 0.01
@@ -38,7 +74,7 @@ class RigModel:
     coupling: Coupling | None = None  # a compliant rotor–arm coupling (not eq. 4; simulated only when set)
 
     @classmethod
-    def from_config(cls, rig: RigConfig, effects: Effects | None = None) -> RigModel:
+    def from_config(cls, rig: RigSpec, effects: Effects | None = None) -> RigModel:
         """The rig of ``rig`` with its own ``[effects]`` plus ``effects`` on top."""
         eff = rig.effects.merged(effects) if effects is not None else rig.effects
         p = rig.lumped()
@@ -87,7 +123,7 @@ class RigModel:
         )
 
 
-def calibration_from_config(rig: RigConfig) -> Calibration:
+def calibration_from_config(rig: RigSpec) -> Calibration:
     s = rig.sensors
     return Calibration(
         theta_rad_per_count=s.theta_rad_per_count,

@@ -43,9 +43,9 @@ from furuta_rt.runtime import signals as stop_signals
 from furuta_rt.runtime.calibration import CALIBRATION_METADATA, CalibrationWindow, StartupCalibration
 from furuta_rt.runtime.hardware import HardwareInterface, LinkLost
 from furuta_rt.runtime.records import STATE_NAMES, TICK_RECORD
-from furuta_rt.runtime.summary import RecentTrace
 from furuta_rt.runtime.supervisor import State, Supervisor, TripReason
 from furuta_rt.runtime.timing import DeviceClock, Histogram, RunningStats
+from furuta_rt.runtime.trace import RecentTrace
 
 __all__ = ["TICK_RECORD", "ControlLoop", "LoopResult", "LoopSettings"]
 

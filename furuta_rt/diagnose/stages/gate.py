@@ -2,7 +2,7 @@
 
 Windows (furuta_rt.diagnose.judgement.verify): the informative ones, spread over the whole recording, horizon from the
 unstable pole of eq. 6. Blocked cross-validation: the windows, in time order, are dealt to N_FOLDS interleaved folds;
-each fold's windows are predicted with the effects refitted (furuta_rt.diagnose.engine.refit on an EquationModel with
+each fold's windows are predicted with the effects refitted (furuta_rt.diagnose.stages.findings.refit on an EquationModel with
 a row filter) on the recording outside its windows and a margin around each, so no window is predicted with
 parameters that saw it. The window stages' effects take their values from the stage's windows outside that span
 (WindowFit.value_on); a free decay's from the whole decay (its fit is already leave-one-cycle-out).
@@ -36,21 +36,28 @@ fitted 2e-5 rad, a fortieth of a count, to significance).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from furuta_rt.config import RigConfig
 from furuta_rt.diagnose.judgement import verify
+from furuta_rt.diagnose.judgement.verdict import above_floor, removes_excess
 from furuta_rt.diagnose.regression.fitting import paired_t
 from furuta_rt.diagnose.regression.library import CANDIDATES, Context, nominal_latency
 from furuta_rt.diagnose.regression.selection import EquationModel, Evaluation, Spec
 from furuta_rt.diagnose.regression.states import MAX_SIGMA
+from furuta_rt.diagnose.stages import peaks, stickslip
+from furuta_rt.diagnose.stages.findings import (
+    LUGRE_CONTAINS,
+    EquationResult,
+    Found,
+    Options,
+    found_in,
+    refit,
+    within_bounds,
+)
 from furuta_rt.diagnose.stages.stickslip import WindowStage
 from furuta_rt.model.effects import Effects
-
-if TYPE_CHECKING:
-    from furuta_rt.diagnose.engine import EquationResult, Found, Options
 
 N_FOLDS = 4
 T_HARM = 3.0  # paired t over windows: the model without the effect predicts better
@@ -148,9 +155,8 @@ class Gate:
 
     def fold_fit(self, eq: str, spec: Spec, fold: int) -> Evaluation:
         """``spec`` fitted on the rows outside the fold: the current model with its nonlinear parameters re-profiled
-        (engine.refit), a model with effects left out of it by least squares at the current model's profiled values
+        (findings.refit), a model with effects left out of it by least squares at the current model's profiled values
         (the leave-one-out models of the gate cost one linear fit each)."""
-        from furuta_rt.diagnose.engine import refit
 
         em = self.train_model(eq, fold) or self.ems[eq]
         full = self.specs.get(eq, spec)
@@ -167,7 +173,6 @@ class Gate:
 
     def fold_params(self, found: list[Found], specs: dict[str, Spec], fold: int) -> dict[str, dict[str, float]]:
         """The found effects' parameters for predicting one fold's windows."""
-        from furuta_rt.diagnose.engine import LUGRE_CONTAINS, _within_bounds
 
         out: dict[str, dict[str, float]] = {}
         names = {f.name for f in found}
@@ -177,7 +182,7 @@ class Gate:
             ev = self.fold_fit(eq, spec, fold)
             for n in ev.spec.effects:
                 if n in names and not (n in LUGRE_CONTAINS and "arm_lugre" in ev.spec.effects):
-                    out[n] = _within_bounds(n, ev.params[n])
+                    out[n] = within_bounds(n, ev.params[n])
         for stage, least in self.stages:
             outside = np.array([self.plan.outside(fold, w.start, w.start + w.horizon) for w in stage.windows])
             for name, fit in stage.fits.items():
@@ -246,7 +251,6 @@ def band_check(ctx: Context, ems: dict[str, EquationModel], res: dict[str, Equat
                opts: Options, wide: Context | None = None) -> dict[str, dict]:
     """Per inverse-dynamics effect (``names``: (equation, effect)) whose value depends on the band (module
     docstring): its value in both bands, their standard errors and the kernel widths."""
-    from furuta_rt.diagnose.engine import refit
 
     wide = wide or band_context(ctx)
     out: dict[str, dict] = {}
@@ -274,8 +278,6 @@ def band_check(ctx: Context, ems: dict[str, EquationModel], res: dict[str, Equat
 
 
 def _above_floor(ctx: Context, em: EquationModel, r: EquationResult, opts: Options) -> bool:
-    from furuta_rt.diagnose.judgement.verdict import above_floor
-
     ev = r.selected
     return above_floor(ctx, em, em.residual(ev.spec, ev.fit.coef), opts.seed)
 
@@ -285,8 +287,6 @@ def _explains_alone(ctx: Context, em: EquationModel, r: EquationResult, name: st
     noise floor (the selected model against it without ``name``, verdict.removes_excess): such an effect is what is
     missing, not a stand-in for it (a pendulum damping taking 2.6 % of the torque scale to 0.2 % on a swing-up where
     the floor is 0.1 %), and stays in a suspect equation without having to predict better."""
-    from furuta_rt.diagnose.judgement.verdict import removes_excess
-
     ev = r.selected
     if name not in ev.spec.effects:
         return False
@@ -312,9 +312,6 @@ def _band_reason(b: dict) -> str:
 def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResult], found: list[Found],
         opts: Options, notes: list[str], stick: WindowStage | None = None, peak: WindowStage | None = None) -> Gated:
     """The prediction gate; ``res`` is updated in place (each equation refitted without the effects moved out)."""
-    from furuta_rt.diagnose.engine import EquationResult, _found, refit
-    from furuta_rt.diagnose.stages import peaks, stickslip
-
     plan = make_plan(ctx.prep, ctx.rig, opts.max_windows, opts.horizon)
     stages = [(s, least) for s, least in ((stick, stickslip.MIN_WINDOWS), (peak, peaks.MIN_PEAK_WINDOWS))
               if s is not None and s.added]
@@ -336,7 +333,7 @@ def run(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResu
                                      r.trace, r.location)
             specs[eq] = res[eq].selected.spec
             names = {f.name for f in found if f.source == ID and f.equation == eq} - {f.name for f in gone}
-            fresh = {f.name: f for f in _found(ems[eq], res[eq], []) if f.name in names}
+            fresh = {f.name: f for f in found_in(ems[eq], res[eq], []) if f.name in names}
             found = [fresh.get(f.name, f) if f.source == ID and f.equation == eq else f for f in found]
         found = [f for f in found if f not in gone]
         moved.extend({"name": f.name, "equation": f.equation, "params": f.params, "reason": reason[f.name],
