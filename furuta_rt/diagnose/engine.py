@@ -3,9 +3,9 @@ show the fit improve.
 
 Pipeline (every physical model from furuta_rt.model / furuta_rt.sim):
 
-1. signals — the recording on a grid, θ reconstructed through the inverse Bessel path, everything
+1. states (regression/states.py) — the recording on a grid, θ reconstructed through the inverse Bessel path, everything
    (states, accelerations, the held command) seen through one Gaussian kernel;
-2. select — per equation of eq. 4 (arm, pendulum), forward selection of named effects on held-out
+2. selection (regression/selection.py) — per equation of eq. 4 (arm, pendulum), forward selection of named effects on held-out
    time blocks, with significance and admissibility checks (furuta_rt.diagnose.regression.selection);
 3. refit — the nonlinear parameters (delay, deadzone, saturation, ΔJ) re-profiled jointly with the others;
 4. window stages — where the arm sticks, its breakaways (stiction, LuGre, actuator timing:
