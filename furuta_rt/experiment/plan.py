@@ -45,7 +45,7 @@ dither on top of the motion (a slow sweep with a dither tells a dead band from d
 actuator's command units (N m for a torque actuator, V for a DC motor).
 
 The reference (φ_r, φ̇_r) enters eq. 5 as u = L·[θ, θ̇, φ − φ_r, φ̇ − φ̇_r]; the added u reaches the arm with the
-controller's command (furuta_rt.control.controller). ``Excitation`` is the plan at the control rate: one ``step``
+controller's command (furuta_rt.controller.controller). ``Excitation`` is the plan at the control rate: one ``step``
 per balancing tick, precomputed, so the real-time path only indexes lists.
 """
 
