@@ -276,6 +276,33 @@ _BOUNDS: tuple[tuple[tuple[str, ...], float, str, str, tuple[tuple[str, float], 
 )
 
 
+# Limits and thresholds in angles, rates and torques: beyond these bounds a value is almost always typed in degrees
+# (or N cm) while the key is in radians (N m): ``safety.theta_limit = 28.6`` would never trip.
+MAX_TORQUE_NM = 20.0  # a Furuta arm's motor; also the largest friction a compensation may cancel
+MAX_VOLTAGE_V = 60.0
+MAX_RATE_RAD_S = 50.0  # rate thresholds (ε of eq. 1, stiction and Stribeck speeds): a few turns a second at most
+_DEG = (("degrees", 180.0 / math.pi),)
+_DEG_S = (("degrees/s", 180.0 / math.pi),)
+_N_CM = (("N cm", 100.0), ("N mm", 1000.0))
+_ANGLE_FROM_UPRIGHT = (math.pi, "rad", "an angle from upright (half a turn at most)", _DEG)
+_LIMITS: tuple[tuple[str, float, str, str, tuple[tuple[str, float], ...]], ...] = (
+    ("safety.theta_limit", *_ANGLE_FROM_UPRIGHT),
+    ("safety.arm_theta", *_ANGLE_FROM_UPRIGHT),
+    ("safety.phi_limit", 20 * math.pi, "rad", "an arm travel (ten turns at most)", _DEG),
+    ("swing_up.catch_theta", *_ANGLE_FROM_UPRIGHT),
+    ("swing_up.fall_theta", *_ANGLE_FROM_UPRIGHT),
+    ("swing_up.still_theta", *_ANGLE_FROM_UPRIGHT),
+    ("swing_up.hanging_tolerance", *_ANGLE_FROM_UPRIGHT),
+    ("compensation.coulomb.epsilon", MAX_RATE_RAD_S, "rad/s", "a rate threshold", _DEG_S),
+    ("compensation.stiction.v_zero", MAX_RATE_RAD_S, "rad/s", "a rate threshold", _DEG_S),
+    ("compensation.lugre.vs", MAX_RATE_RAD_S, "rad/s", "a rate threshold", _DEG_S),
+    ("compensation.adaptive.epsilon", MAX_RATE_RAD_S, "rad/s", "a rate threshold", _DEG_S),
+    ("compensation.adaptive.v_min", MAX_RATE_RAD_S, "rad/s", "a rate threshold", _DEG_S),
+    *((f"compensation.{key}", MAX_TORQUE_NM, "N m", "a friction torque", _N_CM) for key in (
+        "coulomb.Fc", "stiction.Fc", "stiction.Fs", "lugre.Fc", "lugre.Fs", "adaptive.Fc0", "adaptive.Fc_max")),
+)
+
+
 def _unit_hint(value: float, limit: float, units: tuple[tuple[str, float], ...], si: str) -> str:
     for name, factor in units:
         if value / factor <= limit:
@@ -284,8 +311,8 @@ def _unit_hint(value: float, limit: float, units: tuple[tuple[str, float], ...],
 
 
 def implausible(rig: RigConfig) -> list[str]:
-    """Plant values no Furuta pendulum has (almost always a unit mistake), one message each naming the key,
-    the bound and the likely unit; empty when the plant is plausible."""
+    """Plant values no Furuta pendulum has, and angle, rate and torque limits no rig uses (almost always a unit
+    mistake), one message each naming the key, the bound and the likely unit; empty when all are plausible."""
     p = rig.plant
     out = []
     for keys, limit, si, what, units in _BOUNDS:
@@ -294,6 +321,18 @@ def implausible(rig: RigConfig) -> list[str]:
             if value is not None and value > limit:
                 out.append(f"key 'plant.{key}': {value:g} {si} is more than any Furuta pendulum's {what} "
                            f"({limit:g} {si} at most){_unit_hint(value, limit, units, si)}")
+    for key, limit, si, what, units in _LIMITS:
+        value = rig
+        for part in key.split("."):
+            value = getattr(value, part)
+        if value is not None and value > limit:
+            out.append(f"key '{key}': {value:g} {si} is more than {what} ({limit:g} {si} at most)"
+                       f"{_unit_hint(value, limit, units, si)}")
+    a = rig.actuator
+    a_limit, a_unit, a_units = (MAX_VOLTAGE_V, "V", ()) if a.kind == "dc_motor" else (MAX_TORQUE_NM, "N m", _N_CM)
+    if a.limit > a_limit:
+        out.append(f"key 'actuator.limit': {a.limit:g} {a_unit} is more than a Furuta arm's motor takes "
+                   f"({a_limit:g} {a_unit} at most){_unit_hint(a.limit, a_limit, a_units, a_unit)}")
     lo, hi = EARTH_G
     if not lo <= p.g <= hi:
         out.append(f"key 'plant.g': {p.g:g} m/s² is not the gravity on Earth ({lo:g}–{hi:g} m/s²)"

@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import difflib
 import importlib
 import os
 import signal
 import sys
+from typing import NoReturn
 
 from furuta_rt.errors import UserError
 
@@ -23,8 +25,22 @@ COMMANDS = ("analyze", "convert", "design", "diagnose", "experiment", "repair", 
 """The subcommand modules of this package, in the order ``--help`` lists them."""
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """A parser whose usage errors are one line naming the command and the option (``--help`` has the usage), with
+    the nearest option when one was misspelt; the subcommands' parsers are of this class too."""
+
+    def error(self, message: str) -> NoReturn:
+        hint = ""
+        if message.startswith("unrecognized arguments:"):
+            known = [s for a in self._actions for s in a.option_strings if s.startswith("--")]
+            unknown = [w.split("=")[0] for w in message.split(":", 1)[1].split() if w.startswith("-")]
+            near = [m for w in unknown for m in difflib.get_close_matches(w, known, n=1, cutoff=0.6)]
+            hint = f"; did you mean {' or '.join(near)}?" if near else ""
+        self.exit(2, f"{self.prog}: error: {message}{hint} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="furuta-rt",
         description="Real-time control, logging and physics diagnosis for a Furuta pendulum rig.",
     )
@@ -38,7 +54,10 @@ def main(argv: list[str] | None = None) -> int:
     command = "furuta-rt"
     try:
         parser = _build_parser_uninterrupted()
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:  # blamed on the command that was given them, not on furuta-rt
+            commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+            commands.choices[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
         command = f"furuta-rt {args.command}"
         return int(args.func(args) or 0)
     except UserError as err:

@@ -78,8 +78,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    f"safety.max_consecutive_overruns; with --mock {MOCK_TIMEOUT_MS:g} ms worth of ticks)")
     p.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON to FILE")
     p.add_argument("--foxglove", nargs="?", type=int, const=8765, default=None, metavar="PORT",
-                   help="serve the live channels to Foxglove (Open connection → Foxglove WebSocket, "
-                   "ws://127.0.0.1:PORT, default 8765), from the logger process, not the control loop")
+                   help="serve the live channels to Foxglove, Lichtblick or any foxglove.websocket.v1 / foxglove.sdk.v1 "
+                   "client (Open connection → Foxglove WebSocket, ws://127.0.0.1:PORT, default 8765), from the "
+                   "logger process, not the control loop")
+    p.add_argument("--foxglove-host", default="127.0.0.1", metavar="ADDR",
+                   help="address the live view listens on (default 127.0.0.1, this computer only; 0.0.0.0 for the "
+                   "lab's other computers: the stream is not authenticated)")
     m = p.add_argument_group("--mock options (passed to hil-mock)")
     m.add_argument("--mock-effect", action="append", default=[], metavar="NAME.PARAM=VALUE",
                    help="physics the simulated rig has beyond the config, e.g. arm_coulomb.Fc=0.3 (repeatable)")
@@ -219,6 +223,7 @@ def run(args: argparse.Namespace) -> int:
         max_overruns=max_overruns,
         log_path=args.log,
         foxglove_port=args.foxglove,
+        foxglove_host=args.foxglove_host,
         tui=(args.tui or default_tui()) and not args.no_tui,
         realtime=not args.no_rt,
         cpu=args.cpu,

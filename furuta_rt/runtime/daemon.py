@@ -25,6 +25,7 @@ from __future__ import annotations
 import concurrent.futures
 import contextlib
 import dataclasses
+import ipaddress
 import json
 import multiprocessing
 import os
@@ -73,6 +74,7 @@ class RunOptions:
     summary_json: str | None = None
     force: bool = False  # an existing --log or --summary-json file may be replaced (the CLI refused them otherwise)
     foxglove_port: int | None = None  # serve the live view (from the logger process) on this port
+    foxglove_host: str = "127.0.0.1"  # ... on this address (another computer of the lab: 0.0.0.0)
     rig_source: str = "thesis"
     warnings: list[str] = field(default_factory=list)
     comp_source: str = ""  # where the compensation's parameters came from (--comp-from), in words
@@ -93,19 +95,25 @@ def _check_log_path(path: str) -> None:
     probe_writable(path, "the log")
 
 
-def _check_port_free(port: int) -> None:
+def _check_port_free(port: int, host: str) -> None:
     """The live view's port can be bound (it is bound for real by the logger process)."""
-    from furuta_rt.runtime.live import HOST
-
     if not 1 <= port <= 65535:
         raise UserError(f"--foxglove={port}: a TCP port is 1..65535")
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+    try:
+        family = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0][0]
+    except OSError as err:
+        raise UserError(f"--foxglove-host {host}: not an address of this computer ({err.strerror})") from None
+    with socket.socket(family, socket.SOCK_STREAM) as s:
         s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
-            s.bind((HOST, port))
+            s.bind((host, port))
         except OSError as err:
-            raise UserError(f"--foxglove={port}: cannot listen on {HOST}:{port} ({err.strerror}); "
+            raise UserError(f"--foxglove={port}: cannot listen on {host}:{port} ({err.strerror}); "
                             "is another run or bridge serving there? give another port, e.g. --foxglove=8766") from None
+
+
+def _live_url(opts: RunOptions) -> str:
+    return f"ws://{opts.foxglove_host}:{opts.foxglove_port}"
 
 
 def _ticks_on_disk(path: str) -> int | None:
@@ -269,7 +277,7 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
     if opts.log_path:
         _check_log_path(opts.log_path)
     if opts.foxglove_port is not None:
-        _check_port_free(opts.foxglove_port)
+        _check_port_free(opts.foxglove_port, opts.foxglove_host)
     children = _Children()
     mock_start: concurrent.futures.Future | None = None
     mock_proc = None
@@ -285,6 +293,7 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
         # the controller's own imports; the device handshake comes last, right before the first tick
         if opts.log_path or opts.foxglove_port is not None:
             children.spawn_logger(LogSetup(path=opts.log_path, rig=rig, foxglove_port=opts.foxglove_port,
+                                           foxglove_host=opts.foxglove_host,
                                            replace=opts.force))
         if opts.mock_args is not None:
             pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="mock-start")
@@ -310,10 +319,14 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
         warnings += hw.warnings
         children.wait_logger()
         if opts.foxglove_port is not None:
-            from furuta_rt.runtime.live import HOST, LAYOUT_PATH
+            from furuta_rt.runtime.live import LAYOUT_PATH
+            from furuta_rt.runtime.live_door import CLIENTS, SUBPROTOCOLS
 
-            _say(f"live view on ws://{HOST}:{opts.foxglove_port} (Foxglove: Open connection → Foxglove WebSocket; "
-                 f"layout {LAYOUT_PATH})")
+            _say(f"live view on {_live_url(opts)} (Foxglove: Open connection → Foxglove WebSocket; "
+                 f"layout {LAYOUT_PATH}); serves {' and '.join(SUBPROTOCOLS)} ({CLIENTS})")
+            if not ipaddress.ip_address(socket.getaddrinfo(opts.foxglove_host, None)[0][4][0]).is_loopback:
+                _say(f"warning: the live view listens on {opts.foxglove_host}:{opts.foxglove_port}: anyone who can "
+                     "reach this computer can watch the run (the stream is not authenticated or encrypted)")
         applied, rt_warnings = setup_realtime(opts.realtime, cpu=opts.cpu)
         warnings += rt_warnings
         sys.setswitchinterval(1e-4)  # a queue feeder thread must give the GIL back quickly
@@ -325,7 +338,7 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
             children.start_dashboard(DashboardInfo(
                 title=f"furuta-rt run — {rig.name}, {opts.mode}, {rate} Hz", log_path=opts.log_path,
                 arm_theta=limits.arm_theta, theta_limit=limits.theta_limit, phi_limit=limits.phi_limit,
-                live_url=f"ws://127.0.0.1:{opts.foxglove_port}" if opts.foxglove_port is not None else None,
+                live_url=_live_url(opts) if opts.foxglove_port is not None else None,
                 u_unit="V" if rig.actuator.kind == "dc_motor" else "N m"))
         if children.log_q is not None:  # the first put starts the queue's feeder thread: not in a tick
             children.log_q.put(("event", (time.time_ns(), "INFO", f"connecting to {port} at {rate} Hz")))

@@ -157,6 +157,9 @@ def _user_error_for_open(port: str, err: Exception) -> UserError:
     code = getattr(err, "errno", None)
     if code is None and err.args and isinstance(err.args[0], int):
         code = err.args[0]
+    if code == errno.EISDIR or os.path.isdir(port):
+        return UserError(f"--port {port} is a directory; give the DAQ's device, e.g. /dev/ttyACM0 (list devices: "
+                         "python -m serial.tools.list_ports), or use --mock")
     if code == errno.ENOENT:
         return UserError(f"serial device {port} does not exist; check --port (list devices: python -m serial.tools.list_ports), "
                          "or use --mock to run against the simulated pendulum")

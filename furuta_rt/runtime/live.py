@@ -1,5 +1,6 @@
 """The live view: a run's channels served over the Foxglove WebSocket protocol (the ``foxglove-sdk``
-package), for Foxglove's "Open connection → Foxglove WebSocket" at ws://localhost:PORT.
+package), for Foxglove's "Open connection → Foxglove WebSocket" at ws://127.0.0.1:PORT. Clients asking for either
+name of the protocol (``foxglove.sdk.v1``, ``foxglove.websocket.v1``) are served (live_door).
 
 It lives in the logger process and is fed the same queue items as the MCAP writer (the control process
 does nothing more for it): /furuta/tick, /furuta/joint_states, /furuta/timing, /furuta/events (and
@@ -16,11 +17,13 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
 
 from furuta_rt.io import log_schema as ls
+from furuta_rt.runtime.live_door import SubprotocolDoor
 from furuta_rt.runtime.records import TICK_RECORD, TimeBase, record_time_ns, tick_fields, timing_fields
 
 DEFAULT_PORT = 8765
@@ -51,8 +54,14 @@ class LiveView:
 
         foxglove.set_log_level("CRITICAL")  # a client that drops its connection is not the run's problem
         self._context = foxglove.Context()
-        self.server = foxglove.start_server(name="furuta-rt", host=host, port=port, context=self._context)
-        self.port = self.server.port
+        # the sdk server on a private loopback port; the door on the user's answers both subprotocol names
+        self.server = foxglove.start_server(name="furuta-rt", host=HOST, port=0, context=self._context)
+        try:
+            self.door = SubprotocolDoor(host, port, self.server.port)
+        except BaseException:
+            self.server.stop()
+            raise
+        self.port = self.door.port
         self.channels = {
             topic: foxglove.Channel(topic, message_encoding="json", context=self._context,
                                     schema=foxglove.Schema(name=schema["title"], encoding="jsonschema",
@@ -74,7 +83,7 @@ class LiveView:
             run = item[2]
             self.mode = run.get("mode", self.mode)
             with contextlib.suppress(KeyError, ValueError):
-                self.every = max(1, round(float(run["rate_hz"]) / MAX_LIVE_HZ))
+                self.every = max(1, math.ceil(float(run["rate_hz"]) / MAX_LIVE_HZ - 1e-9))
         return self
 
     def ticks(self, batch: list[tuple]) -> None:
@@ -106,15 +115,16 @@ class LiveView:
         self.channels[ls.EVENTS_TOPIC].log(_dumps(ls.log_message(wall_ns, level, message)), log_time=wall_ns)
 
     def close(self) -> None:
+        self.door.close()
         self.server.stop()
 
 
-def start_live_view(port: int) -> LiveView | None:
-    """The live view on ``port``, or None with one line on stderr when it cannot start (the run goes on)."""
+def start_live_view(port: int, host: str = HOST) -> LiveView | None:
+    """The live view on ``host:port``, or None with one line on stderr when it cannot start (the run goes on)."""
     try:
-        return LiveView(port)
+        return LiveView(port, host)
     except Exception as err:  # the sdk raises its own errors for a busy port; the loop must not care
-        print(f"furuta-rt: warning: the live view could not start on port {port}: {err}", file=sys.stderr, flush=True)
+        print(f"furuta-rt: warning: the live view could not start on {host}:{port}: {err}", file=sys.stderr, flush=True)
         return None
 
 

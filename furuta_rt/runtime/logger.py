@@ -50,6 +50,7 @@ class LogSetup:
     # killed at any moment loses under 1 s of log (the reliability issue's bound), by construction.
     flush_s: float = 0.5
     foxglove_port: int | None = None  # serve the live view on this port (furuta_rt.runtime.live)
+    foxglove_host: str = "127.0.0.1"  # ... on this address
     replace: bool = False  # an existing file at ``path`` may be replaced (run --force); else creating it fails
 
 
@@ -149,7 +150,7 @@ def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None) -> N
     """
     ignore_stop_signals()  # Ctrl-C or a closed terminal reaches the whole group: the daemon decides
     log: TickLog | None = TickLog(setup) if setup.path else None
-    live: LiveView | None = start_live_view(setup.foxglove_port) if setup.foxglove_port else None
+    live: LiveView | None = start_live_view(setup.foxglove_port, setup.foxglove_host) if setup.foxglove_port else None
     ready.set()
     parent = multiprocessing.parent_process()
     last_flush = time.monotonic()
