@@ -55,31 +55,34 @@ def _compiler() -> str:
     return cc
 
 
-def _key(cc: str) -> str:
+def _key(cc: str, files: tuple[Path, ...], flags: tuple[str, ...]) -> str:
     h = hashlib.sha256()
     version = subprocess.run([cc, "--version"], capture_output=True, text=True, check=False).stdout
-    for part in (cc, version, *HOST_FLAGS):
+    for part in (cc, version, *flags):
         h.update(part.encode())
-    for path in (*SOURCES, *HEADERS):
+    for path in files:
         h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
 
-def host_library() -> Path:
-    """The shared library of the firmware core with the host HAL; built if not cached."""
+def host_library(sources: tuple[Path, ...] = SOURCES, headers: tuple[Path, ...] = HEADERS,
+                 name: str = LIBRARY_NAME, libs: tuple[str, ...] = ()) -> Path:
+    """A shared library built with the host's compiler and the firmware's flags, cached by source and compiler;
+    by default the firmware core with the host HAL (hil_mock's compiled plant passes its own sources)."""
     cc = _compiler()
-    out = build_dir() / f"{LIBRARY_NAME}-{_key(cc)}.so"
+    flags = (*HOST_FLAGS, *libs)
+    out = build_dir() / f"{name}-{_key(cc, (*sources, *headers), flags)}.so"
     if out.exists():
         return out
     out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{LIBRARY_NAME}-", suffix=".so", dir=out.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{name}-", suffix=".so", dir=out.parent)
     os.close(fd)
     try:
-        res = subprocess.run([cc, *HOST_FLAGS, *map(str, SOURCES), "-o", tmp], capture_output=True, text=True,
+        res = subprocess.run([cc, *HOST_FLAGS, *map(str, sources), "-o", tmp, *libs], capture_output=True, text=True,
                              timeout=120, check=False)
         if res.returncode != 0:
             first = (res.stderr.strip().splitlines() or ["(no output)"])[0]
-            raise BuildError(f"building the C firmware for the host failed: {first}")
+            raise BuildError(f"building {name} for the host failed: {first}")
         os.replace(tmp, out)  # atomic: concurrent builders agree on the result
     finally:
         if os.path.exists(tmp):

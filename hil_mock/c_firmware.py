@@ -32,6 +32,11 @@ STATE_FIELDS = (
 _COUNTERS = ("commands_rx", "commands_applied", "commands_discarded", "watchdog_trips", "handshakes",
              "handshakes_refused", "samples_sent", "status_sent", "hangups", "reboots", "rate_hz", "watchdog_ms",
              "period_ns", "clock_ns", "faults", "seq", "last_cmd_seq")
+_COUNTER_INDEX = tuple((name, STATE_FIELDS.index(name)) for name in _COUNTERS)
+(_TX_FRAMES, _STREAMING, _ENABLED, _ANSWERED, _ANY_APPLIED, _STATUS_FLAGS, _CRC_ERRORS, _ERRORS, _FRAMES_OK,
+ _NEW_SESSIONS, _OUTPUT_COUNTS) = (STATE_FIELDS.index(name) for name in (
+    "tx_frames", "streaming", "enabled", "answered", "any_applied", "status_flags", "crc_errors", "errors",
+    "frames_ok", "new_sessions", "output_counts"))
 
 
 class Board(ctypes.Structure):
@@ -117,6 +122,7 @@ class CFirmware(Firmware):
         self._tx_buf = ctypes.create_string_buffer(TX_BYTES)
         self._tx_len = (ctypes.c_uint16 * TX_FRAMES)()
         self._sessions_seen = 0
+        self._counts = -1  # the output counts last applied (none yet)
         self.decoder = _DecoderCounts()  # type: ignore[assignment]
         lib.host_device_init(self._dev, ctypes.byref(self.board))
         self._sync()
@@ -126,31 +132,36 @@ class CFirmware(Firmware):
         """Read the C state after a call: frames out, counters, the actuator, a new session."""
         lib = self._lib
         lib.host_state(self._dev, self._state)
-        s = dict(zip(STATE_FIELDS, self._state[:], strict=True))
-        if s["tx_frames"]:
+        s = self._state[:]
+        if s[_TX_FRAMES]:
             n = lib.host_take_tx(self._dev, self._tx_buf, self._tx_len)
             raw, pos = self._tx_buf.raw, 0
             for length in self._tx_len[:n]:
                 self.tx.append(raw[pos:pos + length])
                 pos += length
-        for name in _COUNTERS:
-            setattr(self, name, s[name])
-        self.streaming = bool(s["streaming"])
-        self.enabled = bool(s["enabled"])
-        self._answered = bool(s["answered"])
-        self._any_applied = bool(s["any_applied"])
-        self._flags = s["status_flags"]
-        d = self.decoder
-        d.crc_errors, d.errors, d.frames_ok = s["crc_errors"], s["errors"], s["frames_ok"]
-        if s["new_sessions"] != self._sessions_seen:  # a HELLO to an idle device: as Firmware._on_hello
-            self._sessions_seen = s["new_sessions"]
+        d = self.__dict__
+        for name, i in _COUNTER_INDEX:
+            d[name] = s[i]
+        self.streaming = bool(s[_STREAMING])
+        self.enabled = bool(s[_ENABLED])
+        self._answered = bool(s[_ANSWERED])
+        self._any_applied = bool(s[_ANY_APPLIED])
+        self._flags = s[_STATUS_FLAGS]
+        dec = self.decoder
+        dec.crc_errors, dec.errors, dec.frames_ok = s[_CRC_ERRORS], s[_ERRORS], s[_FRAMES_OK]
+        if s[_NEW_SESSIONS] != self._sessions_seen:  # a HELLO to an idle device: as Firmware._on_hello
+            self._sessions_seen = s[_NEW_SESSIONS]
             if self.plant_start_ns is None:
                 self.plant_start_ns = self.clock_ns
             else:
                 self.sim = self._new_plant()
                 self.replacements += 1
-        counts = s["output_counts"]
-        self._set_output(counts_to_actuator(counts - 0x10000 if counts >= 0x8000 else counts, self.full_scale))
+                self._counts = -1  # the new plant gets the output below
+                self.output = 0.0
+        counts = s[_OUTPUT_COUNTS]
+        if counts != self._counts:  # the actuator's value only changes with the counts
+            self._counts = counts
+            self._set_output(counts_to_actuator(counts - 0x10000 if counts >= 0x8000 else counts, self.full_scale))
 
     @property
     def status_flags(self) -> int:

@@ -53,7 +53,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--priority", choices=("normal", "realtime"),
                    help="realtime (default): SCHED_FIFO for the device thread if permitted, else nice -10")
     p.add_argument("--firmware", choices=("python", "c"),
-                   help="device logic: python (default) or c, the microcontroller's C core built for this machine")
+                   help="device logic: c (default), the microcontroller's C core built for this machine, or python")
+    p.add_argument("--plant", choices=("compiled", "python"),
+                   help="plant integration: compiled (default; C, where it covers the model) or python (the reference "
+                   "simulator)")
     p.add_argument("--fault", action="append", default=[], metavar="KIND@T[:DUR]",
                    help="scheduled fault, e.g. stall@2.0:100ms, reset@3, disconnect@5, mute@1:50ms, deaf@1:50ms, "
                         "push@4 (an impulse on the pendulum; push@4:8 = θ̇ jumps 8 rad/s), friction_step@8:Fc=0.5 "
@@ -92,6 +95,7 @@ def config_from_args(args: argparse.Namespace) -> MockConfig:
             "rate_hz": args.rate, "watchdog_ms": args.watchdog_ms, "seed": args.seed,
             "initial_theta": _initial_theta(args), "substep_hz": args.substep_hz, "pacing": args.pacing,
             "spin_us": args.spin_us, "priority": args.priority, "firmware": args.firmware,
+            "plant": args.plant,
         },
         fault_settings={
             "corrupt_rate": args.corrupt_rate, "drop_rate": args.drop_rate, "rx_corrupt_rate": args.rx_corrupt_rate,

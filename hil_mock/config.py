@@ -18,6 +18,8 @@ A mock TOML file (all tables optional)::
     spin_us = 100                   # busy-wait this long before each deadline (after a sleep)
     priority = "realtime"           # SCHED_FIFO for the device thread if permitted (else nice -10); or "normal"
     late_threshold_us = 250         # a tick starting later than this is counted late (default: period / 4)
+    firmware = "c"                  # device logic: the microcontroller's C core built for this machine, or "python"
+    plant = "compiled"              # the plant in C (hil_mock/csrc/plant.c), or "python": the reference simulator
 
     [faults]
     corrupt_rate = 0.0              # per device→host byte: flip one random bit
@@ -64,7 +66,9 @@ class DeviceSettings(_Section):
     spin_us: Annotated[float, Field(ge=0, le=2000)] = 100.0
     priority: Literal["normal", "realtime"] = "realtime"
     late_threshold_us: Annotated[float, Field(gt=0)] | None = None  # default: a quarter period
-    firmware: Literal["python", "c"] = "python"  # device logic: hil_mock.firmware or the C core (hil_mock.c_firmware)
+    firmware: Literal["python", "c"] = "c"  # device logic: the C core (hil_mock.c_firmware) or hil_mock.firmware
+    plant: Literal["compiled", "python"] = "compiled"  # hil_mock.compiled_plant (where it covers the model) or the
+    # reference simulator
 
 
 class FaultSettings(_Section):

@@ -1,7 +1,8 @@
 """The DAQ firmware's logic without wall-clock time or I/O: bytes in, frames out, one ``tick`` per
 timer period. hil_mock.device drives it in real time over a pseudo-terminal.
 
-Behind it is the core simulator (furuta_rt.sim.simulator.Simulator); there is no physics here. The
+Behind it is the core simulator (furuta_rt.sim.simulator.Simulator, its plant integrated in C by
+hil_mock.compiled_plant where that covers the model); there is no physics here. The
 order of operations per tick is the one of furuta_rt.sim.closed_loop.run_closed_loop, so a run
 against the mock with seed s reproduces the simulation with seed s, up to the COMMAND's 16-bit
 quantisation:
@@ -57,6 +58,7 @@ from furuta_rt.config import RigConfig
 from furuta_rt.model.friction import Coulomb, CoulombStiction
 from furuta_rt.model.rig import RigModel
 from furuta_rt.sim.simulator import Simulator
+from hil_mock.compiled_plant import make_simulator
 from hil_mock.config import MAX_RATE_HZ, DeviceSettings
 
 FW_VERSION = (0, 1, 0)
@@ -137,8 +139,8 @@ class Firmware:
     def _new_plant(self) -> Simulator:
         """The rig at its initial state, at rest."""
         s = self.settings
-        return Simulator(self.model, rate_hz=self.substep_hz, substep_hz=self.substep_hz, seed=s.seed,
-                         x0=(s.initial_theta, 0.0, 0.0, 0.0))
+        return make_simulator(self.model, rate_hz=self.substep_hz, substep_hz=self.substep_hz, seed=s.seed,
+                              x0=(s.initial_theta, 0.0, 0.0, 0.0), compiled=s.plant == "compiled")
 
     def _boot(self) -> None:
         """Power-up state: default configuration, idle, output zero, no fault."""

@@ -487,8 +487,11 @@ def recording_mock_main(argv: list[str]) -> int:
     cli.VirtualDevice = RecordingDevice  # type: ignore[misc]
     # SIGHUP: the device vanishes (pty closed), like ``--fault disconnect@T`` but when the test says so
     signal.signal(signal.SIGHUP, lambda *_: recorders[0].device.disconnect() if recorders else None)
+    args = argv[1:]
+    if not any(a == "--firmware" or a.startswith("--firmware=") for a in args):
+        args = ["--firmware", "python", *args]  # the recorder watches the Python device's protocol decisions
     try:
-        return cli.main(argv[1:])
+        return cli.main(args)
     finally:
         if recorders:
             tmp = record_path.with_suffix(".tmp")
