@@ -432,7 +432,7 @@ class VirtualDevice:
             remaining = until - time.perf_counter()
             if remaining <= 0:
                 return False
-            if self._delayed:  # frames held by the delay fault still have to go out
+            if self._delayed or self._backlog:  # frames held by the delay fault or a full pty still have to go out
                 self._write(time.perf_counter())
                 remaining = min(remaining, 0.001)
             if self._wait_readable(min(remaining, 0.05)):
