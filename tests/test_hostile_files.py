@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
@@ -155,3 +156,25 @@ def test_a_log_deleted_under_a_running_run_is_said_at_once_and_the_run_exits_3(t
     assert traceback_free(daemon.stderr + daemon.stdout), daemon.stderr
     assert rc == 3, daemon.stderr
     assert not (tmp_path / "run.mcap").exists()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT], ids=["SIGTERM", "SIGHUP", "SIGINT"])
+def test_a_convert_stopped_by_a_signal_leaves_no_partial_file(tmp_path: Path, sig: int) -> None:
+    src = _recording_csv(tmp_path / "rec.csv", n=400_000)
+    out = tmp_path / "out.mcap"
+    proc = subprocess.Popen([*FURUTA_RT, "convert", str(src), "-o", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=ROOT, start_new_session=True)
+    try:
+        end = time.monotonic() + TIMEOUT_S
+        while not list(tmp_path.glob(".*partial*")) and proc.poll() is None and time.monotonic() < end:
+            time.sleep(0.005)
+        assert proc.poll() is None, "convert ended before it began writing"
+        os.killpg(proc.pid, sig)
+        _, err = proc.communicate(timeout=TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert traceback_free(err), err
+    assert proc.returncode == 128 + sig, err
+    assert len(err.strip().splitlines()) == 1 and "interrupted" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.csv"], "a .partial (or a half output) was left"

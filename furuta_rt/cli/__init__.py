@@ -20,6 +20,7 @@ import sys
 from typing import NoReturn
 
 from furuta_rt.errors import UserError
+from furuta_rt.runtime import signals as stop_signals
 
 COMMANDS = ("analyze", "convert", "design", "diagnose", "experiment", "repair", "replay", "run")
 """The subcommand modules of this package, in the order ``--help`` lists them."""
@@ -59,6 +60,8 @@ def main(argv: list[str] | None = None) -> int:
             commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
             commands.choices[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
         command = f"furuta-rt {args.command}"
+        if argv is None:  # SIGTERM, SIGHUP, SIGQUIT end a command as Ctrl-C does: its cleanup runs (no .partial left)
+            stop_signals.install(_interrupt)
         return int(args.func(args) or 0)
     except UserError as err:
         print(f"{command}: error: {err}", file=sys.stderr)
@@ -108,6 +111,10 @@ def _build_parser_uninterrupted() -> argparse.ArgumentParser:
         err.exit_code = 128 + held[0]  # type: ignore[attr-defined]
         raise err
     return parser
+
+
+def _interrupt(signum: int, _frame: object) -> None:
+    raise stop_signals.Interrupted(signum)
 
 
 def _silence_stdout() -> None:
