@@ -79,6 +79,34 @@ def test_text_is_escaped_and_absent_keys_are_left_out() -> None:
     assert "unexplained" in page and "Held-out prediction" not in page  # no fit key: no fit section
 
 
+def test_the_page_tells_what_the_text_tells() -> None:
+    """No impossible identification presented as a finding, one row per quantity, the text report's signs and
+    number formats (a held-out error that fell by 100 % is −100.0 % in both; t = 12346, not 1.23e+04)."""
+    data = {"rig": "thesis", "summary": "explained",
+            "equations": {"arm": {"rows": 5000, "verdict": "explained", "cv_gain": 1.0}},
+            "effects": [{"name": "arm_coulomb", "params": {"Fc": 0.3}}],
+            "evidence": [{"name": "arm_coulomb", "equation": "arm", "se": {"Fc": 0.001}, "source": "inverse dynamics",
+                          "cv_gain": 1.0, "t": 12345.6}],
+            "identification": {"parameters": {"arm_inertia": {"value": -0.0015, "se": 2e-4, "pinned": False}},
+                               "unphysical": "the joint fit gives arm inertia -0.0015 (≤ 0, impossible): this recording "
+                                             "does not pin the arm's gain, inertia and damping, nor their combinations"}}
+    page = html_page(data, [], ["arm_coulomb: Fc = 0.3 ± 0.001   [arm equation, −100.0 %, t = 12346]"])
+    body = page.split("<h2>Text report</h2>")[0]
+    assert "−100.0 %" in body and ">100.0 %" not in body and "12346" in body and "e+04" not in body
+    ident = body.split("<h2>Identification</h2>")[1]
+    assert "Not identified:" in ident and "<table>" not in ident  # the impossible values are the reason, not a row
+    both = {"arm_viscous": {"value": 0.02, "se": 0.001, "pinned": True},
+            "arm_damping": {"value": 0.02, "se": 0.001, "pinned": True},
+            "input_gain": {"value": 0.98, "se": 0.01, "pinned": True, "selected": True},
+            "arm_inertia": {"value": 0.05, "se": 0.002, "pinned": True}}
+    page = html_page({**data, "identification": {"parameters": both}}, [], [])
+    ident = page.split("<h2>Identification</h2>")[1].split("</table>")[0]
+    assert ident.count("<tr>") == 3 and "arm_viscous = arm_damping" in ident  # header + two quantities
+    assert "input_gain" not in ident  # reported, with its value, under Found
+    worse = html_page({**data, "equations": {"arm": {"rows": 10, "cv_gain": -0.05}}}, [], [])
+    assert "+5.0 %" in worse
+
+
 def test_a_users_directory_is_never_overwritten(reports, tmp_path, capsys) -> None:
     mine = tmp_path / "mine"
     mine.mkdir()
@@ -99,13 +127,17 @@ def test_report_renders_in_headless_chromium(reports, tmp_path) -> None:
         probe = d / "probe.html"
         probe.write_text((d / "report.html").read_text().replace("</body>", (
             "<script>window.addEventListener('load', () => { document.body.setAttribute('data-images', "
-            "JSON.stringify([...document.images].map(i => [i.getAttribute('src'), i.naturalWidth]))); });</script></body>")))
+            "JSON.stringify([...document.images].map(i => [i.getAttribute('src'), i.naturalWidth]))); "
+            "const pre = document.querySelector('pre'); document.body.setAttribute('data-pre', "
+            "JSON.stringify([pre.scrollWidth, pre.clientWidth])); });</script></body>")))
         base = [exe, *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / ('profile_' + name)}", "--virtual-time-budget=10000"]
         dom = subprocess.run([*base, "--dump-dom", probe.as_uri()], capture_output=True, text=True, timeout=120).stdout
         m = re.search(r'data-images="([^"]*)"', dom)
         assert m, f"{name}: the page did not finish loading in Chromium"
         images = json.loads(m.group(1).replace("&quot;", '"'))
         assert images and all(w >= 1000 for _, w in images), images
+        scroll, width = json.loads(re.search(r'data-pre="([^"]*)"', dom).group(1))
+        assert scroll <= width, f"{name}: the text report needs a horizontal scrollbar ({scroll} > {width} px)"
         shot = tmp_path / f"{name}.png"
         subprocess.run([*base, "--window-size=1200,2400", f"--screenshot={shot}", (d / "report.html").as_uri()],
                        capture_output=True, timeout=120, check=True)

@@ -22,7 +22,8 @@ h1 { font-size: 1.5em; } h2 { border-bottom: 1px solid #ccc; padding-bottom: .2e
 .unexplained, .worse, .diverges { background: #f9d0d0; } .not_assessed { background: #e4e4e4; }
 table { border-collapse: collapse; margin: .5em 0; } td, th { border: 1px solid #ccc; padding: .25em .6em; text-align: left; }
 img { max-width: 100%; height: auto; border: 1px solid #ddd; margin: .5em 0; }
-.muted { color: #666; font-size: .9em; } pre { background: #f6f6f6; padding: .8em; overflow-x: auto; font-size: .85em; }
+.muted { color: #666; font-size: .9em; }
+pre { background: #f6f6f6; padding: .8em; font-size: .85em; white-space: pre-wrap; overflow-wrap: anywhere; }
 """
 
 
@@ -36,6 +37,22 @@ def _num(x: object, digits: int = 4) -> str:
 
 def _pct(x: object) -> str:
     return f"{100 * x:.1f} %" if isinstance(x, int | float) and not isinstance(x, bool) else "—"
+
+
+def error_change(cv_gain: object) -> str:
+    """A held-out error reduction (``cv_gain``, a fraction: 0.3 = the error fell by 30 %) as the change of the error,
+    signed as the text report signs it: "−30.0 %" for a fall, "+5.0 %" for a rise."""
+    if not isinstance(cv_gain, int | float) or isinstance(cv_gain, bool):
+        return "—"
+    change = -100 * cv_gain
+    return f"{'−' if change < 0 else '+'}{abs(change):.1f} %"
+
+
+def t_stat(t: object) -> str:
+    """A significance t as the text report prints it: a whole number (not 1e+04), two digits below 10."""
+    if not isinstance(t, int | float) or isinstance(t, bool):
+        return "—"
+    return f"{t:.0f}" if abs(t) >= 10 else f"{t:.2g}"
 
 
 def _combined(e: dict) -> str:
@@ -94,7 +111,7 @@ def _equation(name: str, eq: dict[str, Any], data: dict[str, Any]) -> str:
         rows.append(["residual, with the effects found", _pct(eq["residual_augmented"])])
     if "noise_floor" in eq:
         rows.append(["noise floor (what the sensors alone explain)", _pct(eq["noise_floor"])])
-    rows.append(["held-out error reduction of the effects found", _pct(eq.get("cv_gain"))])
+    rows.append(["held-out error change with the effects found", error_change(eq.get("cv_gain"))])
     rows.append(["usable samples", _num(eq.get("rows"))])
     out.append("<p class=muted>residuals: rms relative to the equation's torque scale</p>" + _table(None, rows))
     corr = {k: v for k, v in (eq.get("correlations") or {}).items() if k != "1" and isinstance(v, int | float)}
@@ -111,9 +128,9 @@ def _equation(name: str, eq: dict[str, Any], data: dict[str, Any]) -> str:
     params = {e["name"]: e.get("params", {}) for e in data.get("effects") or []}
     if found:
         out.append("<p><b>Found:</b></p>" + _table(
-            ["effect", "parameters ± standard error", "from", "held-out error reduction", "t"],
+            ["effect", "parameters ± standard error", "from", "held-out error change", "t"],
             [[_e(e["name"]), _params(params.get(e["name"], {}), e.get("se")) + _combined(e), _e(e.get("source", "")),
-              _pct(e.get("cv_gain")), _num(e.get("t"), 3)] for e in found]))
+              error_change(e.get("cv_gain")), t_stat(e.get("t"))] for e in found]))
     else:
         out.append("<p><b>Found:</b> no library effect in this equation.</p>")
     names = {e["name"] for e in found}
@@ -145,6 +162,21 @@ def _equation(name: str, eq: dict[str, Any], data: dict[str, Any]) -> str:
                                [[_e(c.get("cause", "")), _value(c), _removes(c)] for c in causes]))
         out.append("".join(text))
     return "\n".join(out)
+
+
+def _identified(params: dict[str, Any]) -> list[list[str]]:
+    """One row per quantity: a parameter the effects found report is in "Found" (the same value), and two names
+    the fit gives the same value and error (the arm's viscous friction and its damping without back-EMF) share a row."""
+    rows: dict[tuple[str, str], list[str]] = {}
+    for k, v in params.items():
+        if not isinstance(v, dict) or v.get("selected"):
+            continue
+        cells = (f"{_num(v.get('value'))} ± {_num(v.get('se'), 2)}", "yes" if v.get("pinned") else "no")
+        if cells in rows:
+            rows[cells][0] += f" = {_e(k)}"
+        else:
+            rows[cells] = [_e(k), *cells]
+    return list(rows.values())
 
 
 def html_page(data: dict[str, Any], images: list[str], lines: list[str]) -> str:
@@ -189,13 +221,12 @@ def html_page(data: dict[str, Any], images: list[str], lines: list[str]) -> str:
     ident = data.get("identification")
     if isinstance(ident, dict):
         body.append("<h2>Identification</h2>")
-        params = ident.get("parameters") or {}
-        if params:
-            body.append(_table(["parameter", "value ± se", "pinned"], [
-                [_e(k), f"{_num(v.get('value'))} ± {_num(v.get('se'), 2)}", "yes" if v.get("pinned") else "no"]
-                for k, v in params.items()]))
-        if ident.get("unphysical"):
-            body.append(f"<p>{_e(ident['unphysical'])}</p>")
+        if ident.get("unphysical"):  # an impossible joint fit is no finding: its values are not shown as such
+            body.append(f"<p><b>Not identified:</b> {_e(ident['unphysical'])}.</p>")
+        else:
+            rows = _identified(ident.get("parameters") or {})
+            if rows:
+                body.append(_table(["parameter", "value ± se", "pinned"], rows))
         combos = ident.get("combinations") or {}
         if combos:
             body.append(_table(["combination", "value ± se", "unit"], [

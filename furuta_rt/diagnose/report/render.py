@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 from furuta_rt.diagnose.engine import Diagnosis
 from furuta_rt.diagnose.judgement.locate import features
 from furuta_rt.diagnose.judgement.verify import quiet, simulate_window
-from furuta_rt.diagnose.report.page import MARKER, html_page
+from furuta_rt.diagnose.report.page import MARKER, error_change, html_page, t_stat
 from furuta_rt.diagnose.stages.decay import DecayResult
 from furuta_rt.diagnose.stages.stickslip import WindowStage, simulate_arm
 from furuta_rt.errors import UserError
@@ -56,9 +56,9 @@ def text(d: Diagnosis) -> list[str]:
         lines.append("effects found (held-out error reduction, significance):")
         for e in d.effects:
             alone = "" if e.pinned or not e.combinations else " alone"
-            how = (f"{e.equation} equation, −{100 * e.cv_gain:.1f} %, t = {e.t:.0f}{alone}" if e.source == "inverse dynamics"
+            how = (f"{e.equation} equation, {error_change(e.cv_gain)}, t = {t_stat(e.t)}{alone}" if e.source == "inverse dynamics"
                    else f"{e.equation} equation, from the {e.source}" + (
-                       f": −{100 * e.cv_gain:.1f} %, t = {e.t:.0f}" if e.source.endswith("windows") else ""))
+                       f": {error_change(e.cv_gain)}, t = {t_stat(e.t)}" if e.source.endswith("windows") else ""))
             lines.append(f"  {e.name}: {fmt_params(e.params, e.se)}   [{how}]")
             if not e.pinned:
                 lines.append("    not pinned alone by this recording; " + (
@@ -114,14 +114,18 @@ def figures(d: Diagnosis, out: Path, prefix: str = "") -> list[Path]:
         y0 = em.residual(r.nominal.spec)
         y1 = em.residual(r.selected.spec, r.selected.fit.coef)
         a = ax[i, 0]
-        a.plot(t[rows], y0[rows], ".", ms=1, color="C3", label="nominal")
-        a.plot(t[rows], y1[rows], ".", ms=1, color="C0", label="augmented: " + (", ".join(r.selected.spec.effects) or "none"))
-        for lo, hi in r.location.times:
-            a.axvspan(lo - ctx.prep.t[0], hi - ctx.prep.t[0], color="C1", alpha=0.15)
+        same = np.allclose(y0[rows], y1[rows], rtol=0.0, atol=1e-12 * (1.0 + float(np.abs(y0[rows]).max())))
+        a.plot(t[rows], y0[rows], ".", ms=1, color="C3",
+               label="nominal (= augmented: no effect found here)" if same else "nominal")
+        if not same:  # an identical series drawn over the first would be listed in the legend but invisible
+            a.plot(t[rows], y1[rows], ".", ms=1, color="C0", label="augmented: " + ", ".join(r.selected.spec.effects))
+        for k, (lo, hi) in enumerate(r.location.times):
+            a.axvspan(lo - ctx.prep.t[0], hi - ctx.prep.t[0], color="C1", alpha=0.3, lw=0,
+                      label="where it is largest" if k == 0 else None)
         a.set_ylabel(f"{eq} residual (N m)")
         a.set_xlabel("t (s)")
-        a.set_title(f"{eq} equation: inverse-dynamics residual, nominal and augmented (shaded: where it is largest)",
-                    fontsize=9)
+        a.set_title(f"{eq} equation: inverse-dynamics residual, nominal and augmented"
+                    + ("; orange bands: where it is largest" if r.location.times else ""), fontsize=9)
         a.legend(loc="upper right", fontsize=7, markerscale=6)
     paths.append(_save(fig, out / f"{prefix}residuals.png"))
     # where: nominal residual against the signal it follows most (one row per equation, so the titles fit)
@@ -146,9 +150,9 @@ def figures(d: Diagnosis, out: Path, prefix: str = "") -> list[Path]:
         a.set_title(f"{eq} equation: nominal residual {100 * r.location.relative_rms:.1f} % of its torque scale; {what}",
                     fontsize=9)
         regions = "\n".join(f"{k}: rms ×{v:.1f} of elsewhere" for k, v in r.location.regions.items())
-        if regions:
-            a.text(0.01, 0.97, regions, transform=a.transAxes, va="top", fontsize=7,
-                   bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.8"})
+        if regions:  # beside the axes, not over the points
+            a.text(1.02, 1.0, regions, transform=a.transAxes, va="top", ha="left", fontsize=7,
+                   bbox={"facecolor": "white", "edgecolor": "0.8"})
     paths.append(_save(fig, out / f"{prefix}where.png"))
     # held-out prediction windows
     pred = d.prediction
