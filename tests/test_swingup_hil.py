@@ -12,7 +12,8 @@ within the bound, |φ| inside the rig's cable limit throughout, |u| within the a
 the end, the calibration in the log's metadata (the thesis run's mock has a θ sensor zero error of 0.04 rad, which
 the calibration must find), and replay reproducing every u bit for bit with that calibration applied. The
 macstepien run is pushed (`--mock-fault push@T`, a θ̇ jump of 2√(ε/α)) once balancing: the fall is caught by a
-new swing-up within the bound the simulation of the same push gives (0.39 s simulated; bound 1.3 × + 0.5 s).
+new swing-up within the bound the simulation of the same push gives (0.39 s simulated; bound 1.3 × + 0.5 s). The mock runs in
+lockstep (each device tick as soon as the COMMAND answering the last SAMPLE arrived): every bound is in device time.
 """
 
 from __future__ import annotations
@@ -61,8 +62,10 @@ def test_swing_up_from_hanging_catches_and_balances(name: str, tmp_path: Path) -
         pushed = simulate_swing_up(rig, 8.0, effects=friction, seed=1, push_at=sim.first_catch_s + push_after)
         recatch_limit = bound(pushed.recatch_s)
     duration = calibration_s + limit_s + hold_s + (0.0 if push_at is None else push_after + recatch_limit + hold_s)
+    # lockstep: every bound here is in device time, so the device need not wait for the wall clock
     args = ["--mock", "--swing-up", "--config", name, "--duration", f"{duration:.2f}", "--no-tui",
-            "--log", str(tmp_path / "run.mcap"), "--summary-json", str(tmp_path / "summary.json")]
+            "--log", str(tmp_path / "run.mcap"), "--summary-json", str(tmp_path / "summary.json"),
+            "--mock-arg=--pacing=lockstep"]
     for e in effects:
         args += ["--mock-effect", e]
     if push_at is not None:
