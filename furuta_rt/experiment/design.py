@@ -12,6 +12,11 @@ the rig's θ noise). Comparing the two fits block by block on white noise, the e
 difference of the two squared errors has mean ‖r‖² and standard deviation 2‖r‖). The smaller of the two directions
 (A true, B true) is the candidate's score: a plan must separate the pair whichever is right.
 
+The score compares predicted trajectories. diagnose compares equation errors, which can be far less sensitive: for
+input gain ↔ arm inertia only the pendulum's reaction on the arm (γ θ̈ in eq. 4's arm equation, scaled by a gain,
+not by an inertia) separates them, and a trajectory difference the refit of one parameter does not absorb is not
+necessarily one diagnose sees. The expected t is therefore an upper bound, not yet calibrated against diagnose.
+
 Candidates are scored on ``eval_s`` seconds and the score scaled by √(budget/eval_s) (a stationary excitation gains
 as the square root of its length); the chosen plan is then simulated whole under both alternatives for the worst
 |φ|, |θ|, |u|, and refused if either exceeds the rig's limits.
