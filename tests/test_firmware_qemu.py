@@ -6,11 +6,12 @@ image from its sampled linear model (hil_mock/qemu.py, generated from furuta_rt'
 /dev/pts/N`` handshakes with it, arms and balances.
 
 qemu is not a real-time device: on a loaded 2-core machine its SysTick interrupts come late and are not
-made up (measured: ~290 SAMPLEs a second of wall time at 500 Hz device time), and its USART model hands the
-firmware one received byte per main-loop turn, so under load a COMMAND often completes after the next tick
-(COMMAND_LATE, which the host counts as an overrun). The host's limits are therefore those of ``--mock``
-(500 ms link timeout and device watchdog) with the overrun trip off; what is asserted is the device's identity
-in the handshake, no CRC error, and the pendulum balanced to the end with |θ| small (from the run's log).
+made up, and the host shares the machine (measured: a host loop at 377 Hz tripped the pendulum at θ > 0.5 rad
+when the image ran free). The image therefore runs in lockstep with the host (qemu_board.c: a tick waits, up to
+100 periods, for the COMMAND answering the last SAMPLE), so the closed loop is the same at any load. The host's
+limits are those of ``--mock`` (500 ms link timeout and device watchdog) with the overrun trip off (the host's
+wall-clock periods are not the device's); what is asserted is the device's identity in the handshake, no CRC
+error, and the pendulum balanced to the end with |θ| small (from the run's log).
 
 Needs arm-none-eabi-gcc, picolibc and qemu-system-arm, which scripts/build_firmware (run first by scripts/test)
 installs when it may; without them this test is skipped with that reason, as the cross build is.

@@ -90,12 +90,27 @@ static void plant_step(fw_hal_t *h)
     }
 }
 
+/* Lockstep with the host: while streaming, a SysTick whose COMMAND answering the last SAMPLE has not arrived yet
+ * is let pass (the core's time and the plant stand still, the CPU sleeps to the next SysTick), up to
+ * LOCKSTEP_WAIT_TICKS in a row. qemu is not a real-time device and the host shares the machine: a slow host (a loaded
+ * machine) then slows the device's time instead of leaving the pendulum under a stale command, so the closed loop
+ * is the same at any load. A host that stopped answering gets the core's ordinary path (COMMAND_LATE, then the
+ * watchdog in device time) after the wait. */
+#define LOCKSTEP_WAIT_TICKS 100u
+
+static unsigned waited;
+
 void SysTick_Handler(void)
 {
     int byte;
     while ((byte = ring_get(&hal.rx)) >= 0) {
         fw_rx_byte(&fw, (uint8_t)byte);
     }
+    if (fw.streaming && fw.any_sent && !fw.answered && !fw.faults && waited < LOCKSTEP_WAIT_TICKS) {
+        waited++;
+        return;
+    }
+    waited = 0u;
     fw_tick(&fw);     /* latches the plant at tick k, sets the output for the coming period */
     plant_step(&hal); /* the plant to tick k + 1 under that output */
 }
