@@ -66,8 +66,10 @@ def install(log: Path, groups: list[str], path: Path = LIST) -> int:
     log.parent.mkdir(parents=True, exist_ok=True)
     env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
     with log.open("w") as f:
-        ok = subprocess.run(["apt-get", "update"], stdout=f, stderr=subprocess.STDOUT, env=env, check=False).returncode == 0
-        ok = ok and subprocess.run(["apt-get", "install", "-y", "-q", "--no-install-recommends", *missing],
+        wait = ["-o", "DPkg::Lock::Timeout=600"]  # another clone's install may hold the lock: wait for it
+        ok = subprocess.run(["apt-get", *wait, "update"], stdout=f, stderr=subprocess.STDOUT, env=env,
+                            check=False).returncode == 0
+        ok = ok and subprocess.run(["apt-get", *wait, "install", "-y", "-q", "--no-install-recommends", *missing],
                                    stdout=f, stderr=subprocess.STDOUT, env=env, check=False).returncode == 0
     still = [p for p in missing if not installed(p)]
     if not ok or still:
