@@ -6,24 +6,29 @@ import pytest
 
 from furuta_rt.config import RigConfig, load_rig
 
-# Tests that run the real-time loop against a device (a pty, a mock process, an in-process device paced by the
-# host's clock) or time the host: all of them run one after another on one worker, so they keep a core while the
-# other worker computes (diagnose, design, replay). Files with a test marked ``hil`` join them whole.
-REALTIME_FILES = {
-    "test_bad_input.py", "test_compensation.py", "test_dataloss.py", "test_hil_mock.py", "test_hil_mock_firmware.py",
-    "test_logger.py", "test_no_overwrite.py", "test_reliability_harness.py", "test_reliability_safety.py",
-    "test_run_loop.py", "test_swingup_supervisor.py",
+# Modules that only compute (model, simulation, design, diagnosis, codecs, files): each is a group of its own and
+# the two workers share them. Every other module (a real-time loop against a device: a pty, a mock process, an
+# in-process device paced by the host's clock; a timed host) runs in one group, one test after another on one worker,
+# so it keeps a core while the other worker computes; so does any module with a test marked ``hil``, and any new
+# module until it is named here.
+COMPUTE_FILES = {
+    "test_c_codec.py", "test_compiled_plant.py", "test_config.py", "test_convert.py", "test_coupling.py",
+    "test_design.py", "test_experiment_design.py", "test_friction.py", "test_io_mapping.py", "test_io_mcap.py",
+    "test_limit_cycle.py", "test_model.py", "test_protocol.py", "test_replay.py", "test_replay_stats.py",
+    "test_reproduction.py", "test_sensors_observer.py", "test_simulator.py", "test_swingup.py",
+    "test_system_packages.py",
 }
 
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Under ``--dist loadgroup`` (pytest-xdist): the real-time tests form one group; every other module is a
-    group of its own, so a module's fixtures (recordings, diagnoses) are made once, on one worker."""
-    realtime = REALTIME_FILES | {item.path.name for item in items if item.get_closest_marker("hil")}
+    """Under ``--dist loadgroup`` (pytest-xdist): the real-time tests form one group; every compute module is a
+    group of its own, so its fixtures (recordings, diagnoses) are made once, on one worker."""
+    hil = {item.path.name for item in items if item.get_closest_marker("hil")}
     for item in items:
         name = item.path.name
-        item.add_marker(pytest.mark.xdist_group("realtime" if name in realtime else name.removesuffix(".py")))
+        compute = (name.startswith("test_diagnose") or name in COMPUTE_FILES) and name not in hil
+        item.add_marker(pytest.mark.xdist_group(name.removesuffix(".py") if compute else "realtime"))
 
 
 @pytest.fixture
