@@ -381,8 +381,12 @@ class _Recorder:
     handshakes, and which SAMPLE frames left the device intact or corrupted."""
 
     def __init__(self, device: Any) -> None:
+        from hil_mock.firmware import Firmware
+
         self.device = device
         fw = device.firmware
+        if type(fw) is not Firmware:  # the hooks below are the Python device's protocol code; the C core has none
+            raise TypeError("the recorder needs hil-mock's Python device (--firmware python)")
         self.commands: list[tuple[int, int, int, int, int, int]] = []  # wall ns, dev ns, session, seq, counts, flags
         self.accepted: list[bool] = []  # per COMMAND: accepted by the firmware (PROTOCOL.md §6)
         self.stops: list[tuple[int, int]] = []  # wall ns, dev ns of each STOP received

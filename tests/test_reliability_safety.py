@@ -79,7 +79,8 @@ def check_way_out(how: str, after_batches: int = 8) -> tuple[list[str], str]:
     SAMPLE the host read, from tick k + 1 when the host noticed before answering k (operator stop, θ
     trip); from tick k + 2 when k already had its ENABLE COMMAND, which the device applies at k + 1
     (exception after the tick's write; link loss: the host read k and answered it, SAMPLE k + 1 was lost)."""
-    cfg = build_config(device={"rate_hz": RATE, "pacing": "lockstep", "priority": "normal", "watchdog_ms": 5000})
+    cfg = build_config(device={"rate_hz": RATE, "pacing": "lockstep", "priority": "normal", "watchdog_ms": 5000,
+                                "firmware": "python"})
     rig = load_rig("thesis")
     # the device waits up to 10 s for each answer (not 1 s): the next tick comes after the host acted, however loaded
     saved, hil_device.LOCKSTEP_TIMEOUT_S = hil_device.LOCKSTEP_TIMEOUT_S, 10.0
