@@ -31,6 +31,7 @@ from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 from furuta_rt.model.sensors import quantise
 from furuta_rt.recording import Recording
+from furuta_rt.sim.command_path import CommandPath
 from furuta_rt.sim.simulator import Simulator
 
 # The encoder each rig shape reads θ with (rad per count) and the noise of its reading (rad): the QUBE's 2048-count
@@ -132,6 +133,7 @@ def simulate(
     rng = np.random.default_rng(seed)
     x0 = (math.pi + 0.02 * rng.standard_normal(), 0.0, 0.0, 0.0) if hanging else (0.04, 0.0, 0.0, 0.0)
     sim = Simulator(model, rate, SUBSTEP_HZ, seed=seed, x0=x0)
+    commands = CommandPath(sim, nominal.control.command_delay_ticks)
     q_th, q_ph = THETA_QUANTUM[shape], 2 * math.pi / nominal.sensors.encoder_counts_per_rev
     noise = THETA_NOISE[shape]
     p = model.plant.p
@@ -181,11 +183,6 @@ def simulate(
         row = (sim.t, th_m, ph_m, u, th_t, thd_t, ph_t, phd_t)
         for col, value in zip(cols.values(), row, strict=True):
             col[k] = value
-        if sim.commands_at_sample:
-            sim.set_command(u)
-            sim.advance()
-        else:
-            sim.advance()
-            sim.set_command(u)
+        commands.send_and_advance(u)
     return Recording(t=cols.pop("t"), theta=cols.pop("theta"), phi=cols.pop("phi"), u=cols.pop("u"),
                      theta_dot=None, extra=cols, meta={"rig": nominal.name, "seed": seed, "excitation": excitation})

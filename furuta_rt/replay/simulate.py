@@ -1,8 +1,8 @@
 """A log as the daemon writes it, from the simulator: for tests, demos and the replay benchmark.
 
 Each tick: the simulator's SAMPLE (raw counts) → SI with the rig's calibration → the supervisor state →
-Controller.reset/update/hold → the command takes effect one tick later (command_delay_ticks = 1, as in
-furuta_rt.sim.closed_loop). The supervisor is a fixed script: ``idle`` s of idle (hold, u = 0), then
+Controller.reset/update/hold → the command takes effect with the rig's command timing (furuta_rt.sim.command_path,
+as in furuta_rt.sim.closed_loop). The supervisor is a fixed script: ``idle`` s of idle (hold, u = 0), then
 balancing, re-armed (reset) at each time in ``rearm``, tripped (hold) when |θ| exceeds the safety limit.
 """
 
@@ -22,6 +22,7 @@ from furuta_rt.io.log_schema import device_time_base
 from furuta_rt.io.mcap_log import LogWriter, run_metadata
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
+from furuta_rt.sim.command_path import CommandPath
 from furuta_rt.sim.simulator import Simulator
 
 
@@ -45,6 +46,7 @@ def simulate_log(
     rate = rig.control.rate_hz
     model = RigModel.from_config(rig, effects)
     sim = Simulator(model, rate, max(substep_hz, rate), seed=seed, x0=x0)
+    commands = CommandPath(sim, rig.control.command_delay_ticks)
     mode = mode or rig.compensation.mode
     L = design_gains(rig) if gains is None else np.asarray(gains, dtype=float)
     ctrl = Controller.from_rig(rig, mode=mode, gains=L)
@@ -92,10 +94,5 @@ def simulate_log(
             })
             if flush_ticks and (k + 1) % flush_ticks == 0:
                 w.flush()
-            if sim.commands_at_sample:  # command_latency: the simulator's delay line is the total lag
-                sim.set_command(u)
-                sim.advance()
-            else:
-                sim.advance()
-                sim.set_command(u)
+            commands.send_and_advance(u)
     return Path(path)

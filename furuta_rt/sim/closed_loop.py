@@ -1,8 +1,8 @@
 """Closed-loop simulation: the same Controller.update as the daemon, against the Simulator.
 
-Timing as on the rig: the sample of tick k is read, the command computed from it takes effect at
-tick k+1 (the protocol's one-period command latency); with the effect ``command_latency`` it takes
-effect that many seconds after the sample instant instead.
+Timing as on the rig (furuta_rt.sim.command_path): the sample of tick k is read, the command computed from it takes
+effect command_delay_ticks periods later (the protocol's one-period latency by default); with the effect
+``command_latency`` it takes effect that many seconds after the sample instant instead.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 from furuta_rt.model.sensors import Calibration
 from furuta_rt.recording import Recording
+from furuta_rt.sim.command_path import CommandPath
 from furuta_rt.sim.simulator import Simulator
 
 
@@ -48,6 +49,7 @@ def run_closed_loop(
     sim = Simulator(model, rig.control.rate_hz, substep_hz, seed=seed, x0=x0)
     ctrl = Controller.from_rig(rig, mode=mode, gains=gains)
     ctrl.excitation = excitation
+    commands = CommandPath(sim, rig.control.command_delay_ticks)
     n = round(duration * rig.control.rate_hz)
     cols = {k: np.empty(n) for k in (
         "t", "theta", "theta_dot", "phi", "u", "u_lin", "u_comp", "phi_dot_hat",
@@ -65,12 +67,7 @@ def run_closed_loop(
                th, thd, ph, phd, sim.arm_friction_torque)
         for col, value in zip(cols.values(), row, strict=True):
             col[k] = value
-        if sim.commands_at_sample:  # command_latency: the total lag is the simulator's delay line
-            sim.set_command(out.u)
-            sim.advance()
-        else:
-            sim.advance()
-            sim.set_command(out.u)
+        commands.send_and_advance(out.u)
     return Recording(
         t=cols.pop("t"), theta=cols.pop("theta"), phi=cols.pop("phi"), u=cols.pop("u"),
         theta_dot=cols.pop("theta_dot"), extra=cols,

@@ -1,5 +1,5 @@
 """A simulated swing-up from hanging at rest: the same Controller.update as the daemon (its swing-up on), against the
-Simulator, timed as run_closed_loop times it (the command of tick k acts from tick k+1). What the HIL tests and the
+Simulator, timed as run_closed_loop times it (furuta_rt.sim.command_path). What the HIL tests and the
 benchmark compare the real-time runs with.
 """
 
@@ -14,6 +14,7 @@ from furuta_rt.config import RigConfig
 from furuta_rt.controller.controller import Controller
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
+from furuta_rt.sim.command_path import CommandPath
 from furuta_rt.sim.simulator import Simulator
 
 
@@ -46,6 +47,7 @@ def simulate_swing_up(rig: RigConfig, duration: float, *, effects: Effects | Non
     sim = Simulator(model, rig.control.rate_hz, substep_hz, seed=seed, x0=(math.pi, 0.0, 0.0, 0.0))
     ctrl = Controller.from_rig(rig)
     ctrl.reset(0.0)
+    commands = CommandPath(sim, rig.control.command_delay_ticks)
     p = model.plant.p
     kick = push or 2.0 * math.sqrt(p.epsilon / p.alpha)
     n = round(duration * rig.control.rate_hz)
@@ -71,8 +73,7 @@ def simulate_swing_up(rig: RigConfig, duration: float, *, effects: Effects | Non
         prev = out.swinging
         for col, value in zip(cols.values(), (m.t, m.theta, m.phi, out.u, out.swinging), strict=True):
             col[k] = value
-        sim.advance()
-        sim.set_command(out.u)
+        commands.send_and_advance(out.u)
     theta = (cols["theta"] + math.pi) % (2 * math.pi) - math.pi
     return SwingUpRun(first, recatch, falls, float(np.max(np.abs(cols["phi"]))), float(np.max(np.abs(cols["u"]))),
                       cols["t"], theta, cols["phi"], cols["u"], cols["swinging"].astype(bool), true_state)
