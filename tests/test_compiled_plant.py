@@ -121,3 +121,39 @@ def test_models_plant_c_does_not_cover_run_on_the_reference() -> None:
             CompiledSimulator(model)
     assert type(make_simulator(base)) is CompiledSimulator
     assert type(make_simulator(base, compiled=False)) is Simulator
+
+
+def test_hil_mock_device_defaults_to_c_firmware_and_compiled_plant_with_the_same_samples() -> None:
+    """hil-mock's default device (C firmware core, compiled plant) sends the SAMPLE frames, byte for byte, that the
+    Python device with the reference simulator sends for the same COMMANDs: the compiled plant changes the speed,
+    not the rig."""
+    from firmware_protocol import CommandFlags, Sample, StreamDecoder, encode, encode_command, make_hello
+    from hil_mock.c_firmware import CFirmware, make_firmware
+
+    effects = CASES["stick_slip"][1]
+    frames: dict[str, list[bytes]] = {}
+    for plant, device in (("compiled", {}), ("python", {"firmware": "python", "plant": "python"})):
+        cfg = build_config(effects=effects, device={"rate_hz": 1000, **device})  # "compiled": hil-mock's defaults
+        rig = cfg.load_rig()
+        fw = make_firmware(cfg.device.firmware, rig, RigModel.from_config(rig, cfg.effects), cfg.device, 1000)
+        if plant == "compiled":
+            assert isinstance(fw, CFirmware) and type(fw.sim) is CompiledSimulator
+        else:
+            assert not isinstance(fw, CFirmware) and type(fw.sim) is Simulator
+        fw.receive(encode(make_hello()))
+        fw.tx.clear()
+        dec, out = StreamDecoder(), []
+        for k in range(1500):
+            fw.tick()
+            for frame in fw.tx:
+                for m in dec.feed(frame):
+                    if type(m) is Sample:
+                        out.append(frame)
+                        counts = round(3000 * math.sin(0.02 * k))  # ±0.09 of full scale, reversing
+                        fw.receive(encode_command(m.seq, counts, CommandFlags.ENABLE))
+            fw.tx.clear()
+        frames[plant] = out
+    assert len(frames["compiled"]) == 1500
+    phi = [m.phi_count for f in frames["compiled"] for m in StreamDecoder().feed(f)]
+    assert max(phi) - min(phi) > 20  # the arm moved under the reversing torque (71 counts): not a resting rig
+    assert frames["compiled"] == frames["python"]
