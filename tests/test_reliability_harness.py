@@ -163,7 +163,8 @@ class PtyDevice:
             os.close(self.fd)
 
 
-def run_host_loop(pieces: list[bytes], *, link_timeout_s: float, rate: int = 500) -> tuple[Any, ListSink, PtyDevice, Any]:
+def run_host_loop(pieces: list[bytes], *, link_timeout_s: float, rate: int = 500, duration: float | None = None,
+                  first_sample_timeout: float = 10.0) -> tuple[Any, ListSink, PtyDevice, Any]:
     """The daemon's own host path in-process: SerialHardware + ControlLoop (thesis rig, its supervisor with
     the overrun limit lifted: a Python writer thread is not a clock) against a PtyDevice writing ``pieces``.
     Returns (LoopResult, the logger sink, the device with the COMMANDs it got, the hardware)."""
@@ -182,7 +183,8 @@ def run_host_loop(pieces: list[bytes], *, link_timeout_s: float, rate: int = 500
     lim = SupervisorLimits.from_config(rig.safety, rate)
     lim = SupervisorLimits(lim.theta_limit, lim.phi_limit, lim.arm_theta, 10**9, lim.settle_ticks)
     loop = ControlLoop(hw, Controller.from_rig(rig), Supervisor(lim),
-                       LoopSettings(rate_hz=rate, link_timeout_s=link_timeout_s, first_sample_timeout=10.0),
+                       LoopSettings(rate_hz=rate, link_timeout_s=link_timeout_s, first_sample_timeout=first_sample_timeout,
+                                    duration=duration),
                        full_scale=rig.actuator.limit, calibration=calibration_from_config(rig), log=sink)
     try:
         result = loop.run()

@@ -307,7 +307,9 @@ class ControlLoop:
         nominal_us = 1e6 / st.rate_hz
         stale_age_ns = round(st.stale_age_periods * 1e9 / st.rate_hz)
         loss_timeout = st.link_timeout_s
-        target = None if st.duration is None else round(st.duration * st.rate_hz)
+        # the duration is device time (its SAMPLE clock), not a tick count: a device streaming faster or slower
+        # than its rate, or dropping SAMPLEs, still runs as long as asked; the last tick is one period short of it
+        last_tick_us = None if st.duration is None else st.duration * 1e6 - nominal_us
         stats_after = round(st.stats_after_s * st.rate_hz)
         idle_notice = round(st.idle_notice_s * st.rate_hz)  # ticks: say once why it does not arm
         clock = DeviceClock()
@@ -323,7 +325,7 @@ class ControlLoop:
         prev_balancing = False
         wrote_prev = False
         skipped = 0
-        first_dev_us = first_t1 = 0
+        first_dev_us = first_t1 = prev_dev_us = 0
         balance_start = -1
         win_ticks, win_start, win_max = 0, perf(), 0.0
         timeout = st.first_sample_timeout
@@ -344,9 +346,10 @@ class ControlLoop:
             if s is None:
                 waited = (t1 - t0) * 1e-9
                 self._zero()
-                what = "the device sent no SAMPLE" if r.ticks == 0 else "no SAMPLE"
-                self._end_link_loss(f"link loss: {what} for {waited * 1e3:.1f} ms "
-                                    f"(limit {timeout * 1e3:.1f} ms) after seq {self._last_seq}")
+                what = (f"no SAMPLE for {waited * 1e3:.1f} ms (limit {timeout * 1e3:.1f} ms) after seq {self._last_seq}"
+                        if r.ticks else f"the device sent no SAMPLE in {waited * 1e3:.1f} ms (limit "
+                        f"{timeout * 1e3:.1f} ms) after the handshake")
+                self._end_link_loss(f"link loss: {what}")
                 return
             timeout = loss_timeout
             seq = s.seq
@@ -370,6 +373,14 @@ class ControlLoop:
                     self._transitions()
                     return
                 r.seq_gaps += gap
+                if dev_us < prev_dev_us:  # the same session's clock went back: its times (and dt) cannot be used
+                    self._zero()
+                    sup.trip(seq, TripReason.SEQUENCE, f"the device clock went back from {prev_dev_us} µs to {dev_us} µs "
+                             f"at seq {seq}: its timestamps cannot be trusted (a device fault)")
+                    r.end = "trip"
+                    self._transitions()
+                    return
+            prev_dev_us = dev_us
             prev_start = t1
             prev_seq = seq
             stale = hw.pending > 0
@@ -507,7 +518,7 @@ class ControlLoop:
             if state is _TRIPPED:
                 r.end = "trip"
                 return
-            if target is not None and r.ticks >= target:
+            if last_tick_us is not None and dev_us - first_dev_us >= last_tick_us:
                 r.end = "duration"
                 return
             if excitation is not None and excitation.done:
