@@ -35,7 +35,7 @@ def test_the_duration_is_device_time_not_ticks(step_us: int, ticks: int) -> None
 def test_a_device_clock_that_goes_back_trips_with_u_zero() -> None:
     back_at = 300
     pieces = [b"\x00"] + [_sample(s, s * 2000 if s < back_at else (s - back_at) * 2000 + 1000) for s in range(600)]
-    result, sink, dev, _ = run_host_loop(pieces, link_timeout_s=1.0, rate=RATE, duration=5.0)
+    result, _, dev, _ = run_host_loop(pieces, link_timeout_s=1.0, rate=RATE, duration=5.0)
     assert result.end == "trip" and result.trip_reason == "sequence", result.trip_message
     assert "clock went back" in result.trip_message and f"seq {back_at}" in result.trip_message
     assert result.device_span_s >= 0
