@@ -220,7 +220,7 @@ def lugre_cases() -> list[Case]:
 
 
 def outside_cases() -> list[Case]:
-    """Recordings whose mismatch is outside the library (issue 13): made on a TRUE rig that differs from the config
+    """Recordings whose mismatch is outside the library: made on a TRUE rig that differs from the config
     (pendulum inertia ±20 %, pendulum length ±10 %, a 5 % θ sensor scale error in the loop, a compliant rotor–arm
     coupling), diagnosed against the config. Right answer: the equation the change acts in is `partly_explained` or
     `unexplained`, no effect is named, and the first possible cause is the change (``OUTSIDE_CAUSE``)."""
@@ -407,7 +407,7 @@ def write_json(path: Path, scores: list[CaseScore], extra: dict | None = None) -
                                indent=1, default=float))
 
 
-# ------------------------------------------------------------------------ the realistic group (issue 14, item 7)
+# ------------------------------------------------------------------------ the realistic group
 REALISTIC_CACHE_VERSION = 1
 # the arm damping of each shape's true rig: Quanser's courseware Dr for the QUBE, the authors' fitted b1 for macstepien
 REALISTIC_ARM_VISCOUS = {"qube_servo2": 0.0015, "macstepien": 0.0117}

@@ -1,4 +1,4 @@
-"""Realistic recordings for the `diagnose` benchmark (issue 14, item 7): voltage-driven DC-motor rigs shaped like
+"""Realistic recordings for the `diagnose` benchmark: voltage-driven DC-motor rigs shaped like
 the QUBE-Servo 2 and the macstepien rig, recorded as real rigs record.
 
 A case names the TRUE rig as effects on top of a shipped nominal rig (torque per volt off by ``input_gain``, the

@@ -362,7 +362,7 @@ def main(argv: list[str] | None = None) -> int:
             figures.orbit_figure(kept["orbit"], kept["trajectory"], m.omega if m else None, m.amplitude_phidot if m else None,
                                  out / "limit_cycle_orbit.png", f"ideal loop, Coulomb Fc = {fc:g} N m")
         say("limit cycle: describing function vs periodic orbit vs simulation")
-    # ---- beyond the thesis (issue 19): compensation from a diagnosis of the uncompensated run, and adaptive
+    # ---- beyond the thesis: compensation from a diagnosis of the uncompensated run, and adaptive
     extra.update(beyond_thesis(rig, fc, recs["none"], out, duration, transient, summary))
     say("compensation from diagnose's report, adaptive Coulomb compensation")
     table = table_markdown(results, fc, extra)

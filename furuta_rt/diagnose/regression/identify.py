@@ -1,4 +1,4 @@
-"""Joint calibration of the arm's nominal parameters, and what the data pins (issue 14, JSON key ``identification``).
+"""Joint calibration of the arm's nominal parameters, and what the data pins (JSON key ``identification``).
 
 The arm row of eq. 4 with the actuator of furuta_rt.model.actuator reads M22(θ; J) φ̈ + P = g·k_u·u_held − D·φ̇ + F,
 P the pendulum's reaction and velocity terms, k_u = Kt/R for a DC motor (1 for a torque command), D the damping

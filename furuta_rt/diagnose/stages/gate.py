@@ -1,4 +1,4 @@
-"""The prediction gate and the held-out fit metric (issue 13): nothing that predicts worse is reported as found.
+"""The prediction gate and the held-out fit metric: nothing that predicts worse is reported as found.
 
 Windows (furuta_rt.diagnose.judgement.verify): the informative ones, spread over the whole recording, horizon from the
 unstable pole of eq. 6. Blocked cross-validation: the windows, in time order, are dealt to N_FOLDS interleaved folds;

@@ -1,4 +1,4 @@
-"""The command latency measured jointly with the arm's linear parameters (issue 14, item 2).
+"""The command latency measured jointly with the arm's linear parameters.
 
 The forward selection adds ``input_delay`` / ``command_latency`` as one candidate among others, profiled before the
 gain, inertia and damping are in the model: the profile is then biased (a wrong gain or inertia moves the phase

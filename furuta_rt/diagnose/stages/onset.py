@@ -1,4 +1,4 @@
-"""The actuator's timing read from the arm's starts (issue 14, item 2: the command latency measured).
+"""The actuator's timing read from the arm's starts (the command latency measured).
 
 The latency stage (furuta_rt.diagnose.stages.latency) times the actuator on the arm equation's rows. Where the arm rests and
 a command step starts it — the commonest bench test, one voltage step from rest — those rows carry almost no timing:
