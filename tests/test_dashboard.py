@@ -6,14 +6,17 @@ the same run. The hints of the other states are checked on the rendered panel.""
 from __future__ import annotations
 
 import fcntl
+import math
 import os
 import pty
 import re
+import shutil
 import struct
 import subprocess
 import termios
 import threading
 from pathlib import Path
+from typing import Any
 
 import pytest
 from rich.console import Console
@@ -51,13 +54,14 @@ def test_each_state_says_what_arms_or_trips_the_loop() -> None:
     assert "log: none (--log FILE.mcap to record)" in _text(render(_snap("armed")))
 
 
-def _run_in_pty(args: list[str], cols: int = 130, rows: int = 60) -> tuple[int, str, str]:
+def _run_in_pty(args: list[str], cols: int = 130, rows: int = 60, prefix: list[str] | None = None,
+                preexec_fn: Any = None) -> tuple[int, str, str]:
     """Run the CLI with its stdout on a new pty of ``cols`` × ``rows``; (exit code, what the terminal got, stderr)."""
     master, slave = pty.openpty()
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", rows, cols, 0, 0))
     env = {**os.environ, "TERM": "xterm-256color", "COLUMNS": str(cols), "LINES": str(rows)}
-    proc = subprocess.Popen([*FURUTA_RT, "run", *args], stdin=slave, stdout=slave, stderr=subprocess.PIPE, cwd=ROOT,
-                            env=env, start_new_session=True)
+    proc = subprocess.Popen([*(prefix or []), *FURUTA_RT, "run", *args], stdin=slave, stdout=slave,
+                            stderr=subprocess.PIPE, cwd=ROOT, env=env, start_new_session=True, preexec_fn=preexec_fn)
     os.close(slave)
     chunks: list[bytes] = []
 
@@ -111,3 +115,48 @@ def test_dashboard_in_a_terminal_shows_the_motion_and_the_limit_cycle(tmp_path: 
     assert lc is not None
     assert float(m.group(1)) == pytest.approx(lc.amplitude, rel=0.1)
     assert float(m.group(2)) == pytest.approx(lc.period, rel=0.1)
+
+
+def test_a_still_hanging_pendulum_is_a_flat_trace() -> None:
+    """θ = ±π is one position: a pendulum hanging still (noise across the seam) is drawn flat, as the angle from
+    hanging, not as swings between the trace's ends."""
+    board = Dashboard(DashboardInfo())
+    for k in range(500):
+        side = 1.0 if k % 2 else -1.0
+        board.add({**_snap("calibrating", theta=side * (math.pi - 2e-4)), "elapsed": k * 0.02})
+    text = _text(board.render({**_snap("calibrating", theta=math.pi - 2e-4), "elapsed": 10.0}))
+    row = next(line for line in text.splitlines() if "θ−π" in line and "from hanging" in line)
+    assert len(set(row) & BARS) <= 2, row  # one level (two where noise sits on a level boundary): still
+    swinging = Dashboard(DashboardInfo())
+    for k in range(500):
+        swinging.add({**_snap("swinging_up", theta=math.pi + 0.5 * math.sin(k * 0.1)), "elapsed": k * 0.02})
+    text = _text(swinging.render({**_snap("swinging_up", theta=math.pi), "elapsed": 10.0}))
+    row = next(line for line in text.splitlines() if "θ−π" in line)
+    assert len(set(row) & BARS) >= 6 and "-0.500" in row and "+0.500" in row, row
+
+
+def _as_a_user_without_realtime_rights() -> None:
+    """A root test process drops what lets it lock memory and use SCHED_FIFO (as a non-root user has neither)."""
+    import resource
+
+    resource.setrlimit(resource.RLIMIT_MEMLOCK, (65536, 65536))
+    resource.setrlimit(resource.RLIMIT_RTPRIO, (0, 0))
+
+
+@pytest.mark.hil
+def test_in_a_terminal_without_realtime_rights_each_warning_shows_once_and_hanging_is_flat() -> None:
+    if os.geteuid() == 0:
+        if shutil.which("setpriv") is None:
+            pytest.skip("running as root without setpriv: cannot drop the realtime capabilities")
+        prefix = ["setpriv", "--inh-caps=-all", "--bounding-set=-ipc_lock,-sys_nice,-sys_resource", "--"]
+    else:
+        prefix = []
+    rc, screen, err = _run_in_pty(["--mock", "--swing-up", "--duration", "1.5", "--tui"], prefix=prefix,
+                                  preexec_fn=_as_a_user_without_realtime_rights)
+    assert rc in (0, 4) and traceback_free(err + screen), err
+    seen = ANSI.sub("", screen + err)
+    for warning in ("mlockall failed", "SCHED_FIFO not permitted"):
+        assert seen.count(warning) == 1, f"{warning!r} shown {seen.count(warning)} times:\n{seen[-3000:]}"
+    rows = [line for line in seen.splitlines() if "θ−π" in line]
+    assert rows, seen[-3000:]  # the hanging pendulum is drawn from hanging, calibrating still: flat
+    assert len(set(rows[0]) & BARS) <= 2, rows[0]

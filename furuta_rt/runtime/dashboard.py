@@ -34,6 +34,7 @@ _STATE_STYLE = {"idle": "yellow", "armed": "cyan", "balancing": "bold green", "t
 
 
 TRACE_S = 10.0  # seconds of θ, φ, u shown as traces
+MIN_SPAN = {1: 0.02, 2: 0.02}  # rad: θ and φ traces span at least about a degree (noise is not drawn as motion)
 LIMIT_CYCLE_S = 30.0  # seconds of φ the live limit-cycle line looks at
 _BARS = "▁▂▃▄▅▆▇█"
 
@@ -82,13 +83,17 @@ STATE_HINTS: dict[str, Callable[[dict[str, Any], DashboardInfo], str]] = {
 """Per supervisor state: the line saying what it waits for or what ends it."""
 
 
-def sparkline(values: np.ndarray, width: int) -> str:
-    """``values`` as a row of ``width`` block characters scaled between their min and max."""
+def sparkline(values: np.ndarray, width: int, min_span: float = 0.0) -> str:
+    """``values`` as a row of ``width`` block characters scaled between their min and max (a range narrower than
+    ``min_span`` is drawn as ``min_span`` about its middle: sensor noise is not drawn as full-height swings)."""
     if len(values) == 0:
         return ""
     idx = np.linspace(0, len(values) - 1, min(width, len(values))).round().astype(int)
     v = values[idx]
     lo, hi = float(np.min(v)), float(np.max(v))
+    if hi - lo < min_span:
+        mid = 0.5 * (lo + hi)
+        lo, hi = mid - 0.5 * min_span, mid + 0.5 * min_span
     if hi - lo <= 0:
         return _BARS[0] * len(v)
     levels = np.clip(((v - lo) / (hi - lo) * (len(_BARS) - 1)).round().astype(int), 0, len(_BARS) - 1)
@@ -117,8 +122,12 @@ class Dashboard:
             grid.add_column()
         for col, name, unit in ((1, "θ", "rad"), (2, "φ", "rad"), (3, "u", self.info.u_unit)):
             v = recent[:, col]
+            if col == 1 and len(v) and np.mean(np.cos(v)) < 0:
+                # hanging: θ = ±π is one position, so a still pendulum would flip between the trace's ends;
+                # drawn as the angle from hanging it is flat when still and swings about the middle
+                v, name, unit = np.mod(v, 2 * np.pi) - np.pi, "θ−π", "rad from hanging"
             span = f"{np.min(v):+.3f} … {np.max(v):+.3f} {unit}" if len(v) else ""
-            grid.add_row(name, Text(sparkline(v, self.trace_width), style="cyan"), span)
+            grid.add_row(name, Text(sparkline(v, self.trace_width, MIN_SPAN.get(col, 0.0)), style="cyan"), span)
         return grid
 
     def _limit_cycle_line(self) -> Text:

@@ -111,6 +111,7 @@ class LoopResult:
     catches: int = 0  # swinging_up → balancing
     falls: int = 0  # balancing → swinging_up
     first_catch_s: float = math.nan  # device time from the start of the swing-up to its first catch
+    first_catch_run_s: float = math.nan  # device time from the run's first tick to the first catch
     calibration: StartupCalibration | None = None
 
     @property
@@ -154,6 +155,7 @@ class ControlLoop:
         self.mode = mode
         self.calibration_window = CalibrationWindow(swing_up, settings.rate_hz) if swing_up is not None else None
         self.result = LoopResult()
+        self._shown_events: list[str] = []  # events for the dashboard (the ones not printed above it already)
         self._stop: str | None = None
         self._batch: list[tuple] = []
         self._wall0 = time.time_ns()
@@ -192,6 +194,8 @@ class ControlLoop:
         is False: already said)."""
         wall = self._wall(time.perf_counter_ns() if perf_ns is None else perf_ns)
         self.result.events.append((wall, level, message))
+        if show:  # the dashboard's event list: what was not already said above it
+            self._shown_events.append(message)
         self._flush_batch()
         if self.log is not None:
             try:
@@ -233,7 +237,7 @@ class ControlLoop:
             "rate_hz": win_ticks / span if span > 0 else 0.0, "jitter_max_us": win_max_dev,
             "overruns": r.overruns, "late_commands": r.late_commands, "seq_gaps": r.seq_gaps,
             "crc_errors": self.hw.crc_errors, "dropped": r.dropped_log_messages, "ticks": r.ticks,
-            "trip": self.sup.reason, "events": [m for _, _, m in r.events[-4:]],
+            "trip": self.sup.reason, "events": self._shown_events[-4:],
         }
         with contextlib.suppress(queue.Full):  # the dashboard is behind: skip this snapshot
             self.dashboard.put_nowait(snap)  # type: ignore[union-attr]
@@ -423,6 +427,7 @@ class ControlLoop:
                             r.catches += 1
                             if r.catches == 1:
                                 r.first_catch_s = (dev_us - swing_start_us) * 1e-6
+                                r.first_catch_run_s = (dev_us - first_dev_us) * 1e-6
                         else:
                             r.falls += 1
                 u = out.u

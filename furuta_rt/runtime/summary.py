@@ -92,7 +92,8 @@ def _swing_up_dict(r: LoopResult, rate_hz: float) -> dict[str, Any] | None:
     cal = r.calibration
     if cal is None and r.swing_up_ticks == 0:
         return None
-    return {"swing_up_s": r.swing_up_ticks / rate_hz, "first_catch_s": _num(r.first_catch_s), "catches": r.catches,
+    return {"swing_up_s": r.swing_up_ticks / rate_hz, "first_catch_s": _num(r.first_catch_s),
+            "first_catch_run_s": _num(r.first_catch_run_s), "catches": r.catches,
             "falls": r.falls, "theta_zero": None if cal is None else cal.theta_zero,
             "phi_zero": None if cal is None else cal.phi_zero}
 
@@ -103,7 +104,15 @@ def _p(h: Any, unit: str = "µs") -> str:
     return f"p50 {h.percentile(0.5):.0f}  p99 {h.percentile(0.99):.0f}  max {h.max:.0f} {unit}"
 
 
-def _limit_cycle_line(r: LoopResult) -> str | None:
+def friction_advice(mode: str) -> str:
+    """What a limit cycle in φ suggests, given the compensation that ran (section 4: arm Coulomb friction)."""
+    if mode in ("none", ""):
+        return "arm friction? try --comp coulomb"
+    return (f"with {mode} compensation active: more arm friction than it cancels? "
+            "furuta-rt diagnose a --log of this run")
+
+
+def _limit_cycle_line(r: LoopResult, mode: str = "none") -> str | None:
     if r.theta.n <= 1:
         return None
     lc_phi, lc_theta = limit_cycles(r.trace)
@@ -112,7 +121,7 @@ def _limit_cycle_line(r: LoopResult) -> str | None:
         return f"  no limit cycle in φ (none of two or more regular cycles in the last {span} balancing ticks)"
     theta = f"; θ ±{lc_theta.amplitude:.4f} rad" if lc_theta is not None else ""
     return (f"  limit cycle: φ ±{lc_phi.amplitude:.3f} rad, period {lc_phi.period:.2f} s "
-            f"({lc_phi.cycles} cycles){theta} — arm friction? try --comp coulomb")
+            f"({lc_phi.cycles} cycles){theta} — {friction_advice(mode)}")
 
 
 def _injected_line(injected: Sequence[str]) -> str | None:
@@ -146,7 +155,10 @@ def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_pa
         lines.append(f"  adaptive Coulomb estimate at the end: Fc {fc_hat:.4f} N m")
     su = _swing_up_dict(r, rate_hz)
     if su is not None:
-        first = "never caught" if su["first_catch_s"] is None else f"first caught {su['first_catch_s']:.2f} s after the start"
+        first = "never caught" if su["first_catch_s"] is None else (
+            f"first caught {su['first_catch_s']:.2f} s after the swing-up began"
+            + (f" ({su['first_catch_run_s']:.2f} s into the run: the calibration and arming before it are not counted)"
+               if su["first_catch_run_s"] is not None else ""))
         zeros = "" if r.calibration is None else (f"; calibration θ zero {r.calibration.theta_zero:+.4f} rad, "
                                                   f"arm zero {r.calibration.phi_zero:+.4f} rad")
         lines.append(f"  swing-up: {first}, swinging {su['swing_up_s']:.2f} s, {su['catches']} catch(es), "
@@ -158,7 +170,7 @@ def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_pa
         )
     elif r.balancing_ticks == 0 and su is None:
         lines.append("  never balanced: the pendulum was not brought within the arming window (|θ| < arm_theta)")
-    lines += [line for line in (_limit_cycle_line(r), _injected_line(injected)) if line]
+    lines += [line for line in (_limit_cycle_line(r, mode), _injected_line(injected)) if line]
     if limits:
         lines.append(f"  limits: {limits}")
     if not log_path:
