@@ -213,9 +213,14 @@ class CFirmware(Firmware):
 
 
 def make_firmware(kind: str, rig: RigConfig, model: RigModel, settings: DeviceSettings, rate_hz: int) -> Firmware:
-    """The device logic hil_mock runs: ``python`` (hil_mock.firmware) or ``c`` (the microcontroller's C core)."""
+    """The device logic hil_mock runs: ``python`` (hil_mock.firmware), ``c`` (the microcontroller's C core) or
+    ``board`` (the flashed image on the board model)."""
+    if kind == "board":
+        from hil_mock.board_model.device import BoardFirmware  # unicorn only when asked for
+
+        return BoardFirmware(rig, model, settings, rate_hz)
     if kind == "c":
         return CFirmware(rig, model, settings, rate_hz)
     if kind == "python":
         return Firmware(rig, model, settings, rate_hz)
-    raise ValueError(f"firmware {kind!r}: choose python or c")
+    raise ValueError(f"firmware {kind!r}: choose python, c or board")

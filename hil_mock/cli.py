@@ -52,8 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spin-us", type=float, metavar="US", help="busy-wait before each deadline (default 100)")
     p.add_argument("--priority", choices=("normal", "realtime"),
                    help="realtime (default): SCHED_FIFO for the device thread if permitted, else nice -10")
-    p.add_argument("--firmware", choices=("python", "c"),
-                   help="device logic: c (default), the microcontroller's C core built for this machine, or python")
+    p.add_argument("--firmware", choices=("python", "c", "board"),
+                   help="device logic: c (default), the microcontroller's C core built for this machine; python; or "
+                        "board, the flashed image (scripts/build_firmware) on the register-level STM32F401 model")
     p.add_argument("--plant", choices=("compiled", "python"),
                    help="plant integration: compiled (default; C, where it covers the model) or python (the reference "
                    "simulator)")

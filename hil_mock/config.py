@@ -66,7 +66,8 @@ class DeviceSettings(_Section):
     spin_us: Annotated[float, Field(ge=0, le=2000)] = 100.0
     priority: Literal["normal", "realtime"] = "realtime"
     late_threshold_us: Annotated[float, Field(gt=0)] | None = None  # default: a quarter period
-    firmware: Literal["python", "c"] = "c"  # device logic: the C core (hil_mock.c_firmware) or hil_mock.firmware
+    firmware: Literal["python", "c", "board"] = "c"  # device logic: the C core (hil_mock.c_firmware),
+    # hil_mock.firmware, or the flashed image on the register-level board model (hil_mock.board_model)
     plant: Literal["compiled", "python"] = "compiled"  # hil_mock.compiled_plant (where it covers the model) or the
     # reference simulator
 

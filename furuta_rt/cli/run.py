@@ -93,8 +93,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--mock-initial-theta", type=float, metavar="RAD",
                    help="pendulum angle when the mock starts (default 0.05 rad: arms at once; with --swing-up it "
                    "starts hanging)")
-    m.add_argument("--mock-firmware", choices=("python", "c"),
-                   help="the mock's device logic: python (default) or c, the DAQ firmware's C core built for this machine")
+    m.add_argument("--mock-firmware", choices=("python", "c", "board"),
+                   help="the mock's device logic: python (default); c, the DAQ firmware's C core built for this "
+                        "machine; board, the flashed image on the register-level board model (a dc_motor rig)")
     m.add_argument("--mock-arg", action="append", default=[], metavar="ARG",
                    help="any other hil-mock argument, e.g. --mock-arg=--drop-rate=0.001 (repeatable)")
     p.set_defaults(func=run)

@@ -1,0 +1,326 @@
+"""Register models of the STM32F401 peripherals board.c uses (RM0368), each at its bus address.
+
+Every model holds the registers the firmware may touch; an access to any other offset of a peripheral — or to a
+peripheral with its bus clock off — is a ``ModelError`` naming the register, never a silent zero. Time is the MCU's
+device clock in ns (``Clock``); the timers derive their counters from it, so what the firmware reads is what the
+silicon would show at that instant (the CPU itself is modelled as infinitely fast between two interrupts).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+TIMER_HZ = 84_000_000  # TIM2/3/5 kernel clock with APB1 at 42 MHz (×2), board_config.h BOARD_TIMER_HZ
+LSI_HZ = 32_000  # the IWDG's clock (nominal; RM0368 gives 17–47 kHz)
+IRQ_TIM5, IRQ_USART2 = 50, 38
+
+
+class ModelError(RuntimeError):
+    """The firmware did something the board model does not implement (or the silicon would not allow)."""
+
+
+@dataclass
+class Clock:
+    now_ns: int = 0
+
+
+class Peripheral:
+    """A block of 32-bit registers at ``base``: ``regs`` offset → value; reads/writes dispatch to hooks."""
+
+    name = "peripheral"
+    size = 0x400
+    clock_bit: tuple[str, int] | None = None  # (RCC enable register, bit) that must be set to use it
+
+    def __init__(self, base: int, resets: dict[int, int]) -> None:
+        self.base = base
+        self.regs = dict(resets)
+
+    def reg_name(self, off: int) -> str:
+        return f"{self.name}+0x{off:02X}"
+
+    def unknown(self, off: int, what: str) -> ModelError:
+        return ModelError(f"board model: {what} of {self.reg_name(off)} (0x{self.base + off:08X}), a register the "
+                          "model does not implement")
+
+    def read(self, off: int) -> int:
+        if off not in self.regs:
+            raise self.unknown(off, "read")
+        return self.regs[off]
+
+    def write(self, off: int, value: int) -> None:
+        if off not in self.regs:
+            raise self.unknown(off, "write")
+        self.regs[off] = value
+
+
+class Rcc(Peripheral):
+    """RCC: oscillators ready as soon as enabled, SWS follows SW, bus clock enables."""
+
+    name = "RCC"
+    CR, PLLCFGR, CFGR, AHB1ENR, APB1ENR, APB2ENR = 0x00, 0x04, 0x08, 0x30, 0x40, 0x44
+
+    def __init__(self) -> None:
+        super().__init__(0x40023800, {0x00: 0x83, 0x04: 0x24003010, 0x08: 0, 0x30: 0, 0x40: 0, 0x44: 0})
+
+    def read(self, off: int) -> int:
+        v = super().read(off)
+        if off == self.CR:  # HSIRDY/HSERDY/PLLRDY follow HSION/HSEON/PLLON (start-up time not modelled)
+            v = (v & ~((1 << 1) | (1 << 17) | (1 << 25))) | ((v & 1) << 1) | ((v >> 16 & 1) << 17) | ((v >> 24 & 1) << 25)
+        elif off == self.CFGR:
+            v = (v & ~0xC) | ((v & 3) << 2)
+        return v
+
+    def enabled(self, reg: str, bit: int) -> bool:
+        return bool(self.regs[getattr(self, reg)] >> bit & 1)
+
+
+class Flash(Peripheral):
+    name = "FLASH"
+    size = 0x400
+
+    def __init__(self) -> None:
+        super().__init__(0x40023C00, {0x00: 0})
+
+
+class Gpio(Peripheral):
+    """GPIO port: mode/speed/pull/alternate-function registers, BSRR sets ODR."""
+
+    BSRR, ODR = 0x18, 0x14
+
+    def __init__(self, name: str, base: int, clock_bit: int, moder: int, ospeedr: int, pupdr: int) -> None:
+        super().__init__(base, {0x00: moder, 0x04: 0, 0x08: ospeedr, 0x0C: pupdr, 0x10: 0, 0x14: 0, 0x20: 0, 0x24: 0})
+        self.name = name
+        self.clock_bit = ("AHB1ENR", clock_bit)
+
+    def write(self, off: int, value: int) -> None:
+        if off == self.BSRR:
+            odr = self.regs[self.ODR]
+            self.regs[self.ODR] = (odr | (value & 0xFFFF)) & ~(value >> 16)
+            return
+        super().write(off, value)
+
+    def mode(self, pin: int) -> int:
+        return self.regs[0x00] >> (2 * pin) & 3
+
+    def alternate(self, pin: int) -> int:
+        reg = 0x20 if pin < 8 else 0x24
+        return self.regs[reg] >> (4 * (pin % 8)) & 15
+
+    def output(self, pin: int) -> bool:
+        return bool(self.regs[self.ODR] >> pin & 1)
+
+
+_TIM_REGS = {0x00: 0, 0x04: 0, 0x08: 0, 0x0C: 0, 0x10: 0, 0x14: 0, 0x18: 0, 0x1C: 0, 0x20: 0, 0x24: 0, 0x28: 0,
+             0x2C: 0xFFFFFFFF, 0x34: 0, 0x38: 0, 0x3C: 0, 0x40: 0}
+
+
+class Timer(Peripheral):
+    """A general-purpose timer. Up-counting from the kernel clock, or the encoder interface (SMS = 1..3) where the
+    count is the plant's; the update event sets UIF (and raises ``irq`` with UIE); CCR1 preload (OC1PE) and ARR
+    preload (ARPE) take effect at the update event, as on the silicon."""
+
+    CR1, SMCR, DIER, SR, EGR, CCMR1, CCER, CNT, PSC, ARR, CCR1 = 0x00, 0x08, 0x0C, 0x10, 0x14, 0x18, 0x20, 0x24, 0x28, 0x2C, 0x34
+
+    def __init__(self, name: str, base: int, clock_bit: int, bits: int, clock: Clock, irq: int | None,
+                 raise_irq: Callable[[int], None]) -> None:
+        super().__init__(base, _TIM_REGS)
+        self.name = name
+        self.clock_bit = ("APB1ENR", clock_bit)
+        self.mask = (1 << bits) - 1
+        self.regs[self.ARR] = self.mask
+        self.clock = clock
+        self.irq = irq
+        self.raise_irq = raise_irq
+        self.t0_ns = 0  # time of the last update event (counter 0), while counting
+        self.arr_active = self.mask
+        self.ccr1_active = 0
+        self.encoder_count: Callable[[], int] | None = None
+
+    def counting(self) -> bool:
+        return bool(self.regs[self.CR1] & 1) and not self.regs[self.SMCR] & 7
+
+    def tick_ns(self) -> float:
+        return 1e9 * (self.regs[self.PSC] + 1) / TIMER_HZ
+
+    def count(self) -> int:
+        if self.regs[self.SMCR] & 7 in (1, 2, 3):  # encoder interface: the plant's position
+            return (self.encoder_count() if self.encoder_count and self.regs[self.CR1] & 1 else 0) & self.mask
+        if not self.counting():
+            return self.regs[self.CNT]
+        return int((self.clock.now_ns - self.t0_ns) / self.tick_ns()) & self.mask
+
+    def next_update_ns(self) -> int | None:
+        """When the next update event happens (None: not counting)."""
+        if not self.counting():
+            return None
+        cnt = self.count()
+        ticks = self.arr_active + 1 - cnt if cnt <= self.arr_active else self.mask + 1 - cnt + self.arr_active + 1
+        return self.clock.now_ns + max(1, round(ticks * self.tick_ns()))
+
+    def update_event(self, at_ns: int) -> None:
+        """Counter reached ARR (or UG): back to 0, preloads transfer, UIF set."""
+        self.t0_ns = at_ns
+        self.regs[self.CNT] = 0
+        self.arr_active = self.regs[self.ARR]
+        self.ccr1_active = self.regs[self.CCR1]
+        self.regs[self.SR] |= 1
+        if self.irq is not None and self.regs[self.DIER] & 1:
+            self.raise_irq(self.irq)
+
+    def read(self, off: int) -> int:
+        if off == self.CNT:
+            return self.count()
+        return super().read(off)
+
+    def write(self, off: int, value: int) -> None:
+        if off == self.SR:  # rc_w0: writing 0 clears, 1 leaves
+            self.regs[off] &= value
+            return
+        if off == self.EGR:
+            if value & 1:  # UG: reinitialise the counter and transfer the preloads (UIF too, URS = 0)
+                self.update_event(self.clock.now_ns)
+            return
+        if off == self.CNT:
+            self.t0_ns = self.clock.now_ns - round((value & self.mask) * self.tick_ns())
+        if off == self.CR1 and value & 1 and not self.regs[self.CR1] & 1:
+            self.t0_ns = self.clock.now_ns - round(self.regs[self.CNT] * self.tick_ns())
+        if off == self.CR1 and not value & 1 and self.regs[self.CR1] & 1:
+            self.regs[self.CNT] = self.count()
+        super().write(off, value)
+        if off == self.ARR and not self.regs[self.CR1] & (1 << 7):
+            self.arr_active = value & self.mask  # no preload: at once (a lower ARR than CNT runs to the wrap)
+        if off == self.CCR1 and not self.regs[self.CCMR1] & (1 << 3):
+            self.ccr1_active = value
+
+
+class Adc(Peripheral):
+    """ADC1 with its injected group: a JSWSTART converts the sequence (JSQ from JL) from ``sample()`` at once."""
+
+    name = "ADC1"
+    clock_bit = ("APB2ENR", 8)
+    SR, CR1, CR2, SMPR1, SMPR2, JSQR, JDR1 = 0x00, 0x04, 0x08, 0x0C, 0x10, 0x38, 0x3C
+
+    def __init__(self) -> None:
+        super().__init__(0x40012000, {0x00: 0, 0x04: 0, 0x08: 0, 0x0C: 0, 0x10: 0, 0x38: 0, 0x3C: 0, 0x40: 0,
+                                      0x44: 0, 0x48: 0, 0x304: 0})  # 0x304: ADC_CCR (common registers)
+        self.channel_code: Callable[[int], int] = lambda ch: 0
+        self.conversions = 0
+
+    def write(self, off: int, value: int) -> None:
+        if off == self.SR:
+            self.regs[off] &= value
+            return
+        if off == self.CR2 and value & (1 << 22):
+            if not value & 1:
+                raise ModelError("board model: ADC1 injected conversion started with ADON clear")
+            self.convert_injected()
+            value &= ~(1 << 22)
+        super().write(off, value)
+
+    def convert_injected(self) -> None:
+        jsqr = self.regs[self.JSQR]
+        n = (jsqr >> 20 & 3) + 1
+        for i in range(n):  # with JL = n-1 the sequence is JSQ(4-n+1)..JSQ4, results in JDR1..JDRn
+            ch = jsqr >> (5 * (4 - n + i)) & 31
+            self.regs[self.JDR1 + 4 * i] = self.channel_code(ch) & 0xFFF
+        self.regs[self.SR] |= (1 << 2) | (1 << 3)  # JEOC, JSTRT
+        self.conversions += 1
+
+
+class Usart(Peripheral):
+    """USART2: TX bytes leave at once (TXE stays set), RX bytes arrive through ``receive``; RXNE/ORE as RM0368."""
+
+    name = "USART2"
+    clock_bit = ("APB1ENR", 17)
+    SR, DR, BRR, CR1, CR2, CR3 = 0x00, 0x04, 0x08, 0x0C, 0x10, 0x14
+    RXNE, TXE, TC, ORE = 1 << 5, 1 << 7, 1 << 6, 1 << 3
+
+    def __init__(self, raise_irq: Callable[[int], None], tx: bytearray) -> None:
+        super().__init__(0x40004400, {0x00: 0xC0, 0x04: 0, 0x08: 0, 0x0C: 0, 0x10: 0, 0x14: 0})
+        self.raise_irq = raise_irq
+        self.tx = tx  # bytes sent, kept across resets (the host's side of the line)
+        self.rx_lost = 0
+        self._sr_read = False
+
+    def line(self) -> bool:
+        sr, cr1 = self.regs[self.SR], self.regs[self.CR1]
+        return bool((sr & self.TXE and cr1 & (1 << 7)) or (sr & (self.RXNE | self.ORE) and cr1 & (1 << 5)))
+
+    def receive(self, byte: int) -> None:
+        if not self.regs[self.CR1] & (1 << 13) or not self.regs[self.CR1] & (1 << 2):
+            self.rx_lost += 1  # UE/RE off: the byte is not received
+            return
+        if self.regs[self.SR] & self.RXNE:
+            self.regs[self.SR] |= self.ORE  # the previous byte was not read: this one is lost
+            self.rx_lost += 1
+        else:
+            self.regs[self.DR] = byte
+            self.regs[self.SR] |= self.RXNE
+        if self.line():
+            self.raise_irq(IRQ_USART2)
+
+    def read(self, off: int) -> int:
+        v = super().read(off)
+        if off == self.SR:
+            self._sr_read = True
+        elif off == self.DR:
+            if self._sr_read:  # SR then DR clears ORE/NF/FE
+                self.regs[self.SR] &= ~0xF
+            self.regs[self.SR] &= ~self.RXNE
+            self._sr_read = False
+        return v
+
+    def write(self, off: int, value: int) -> None:
+        if off == self.DR:
+            if not self.regs[self.CR1] & (1 << 13) or not self.regs[self.CR1] & (1 << 3):
+                raise ModelError("board model: USART2_DR written with UE or TE clear")
+            self.tx.append(value & 0xFF)
+            return
+        if off == self.SR:
+            self.regs[off] &= value | ~0x60  # only RXNE and TC are rc_w0
+            return
+        super().write(off, value)
+        if off == self.CR1 and self.line():
+            self.raise_irq(IRQ_USART2)
+
+
+class Iwdg(Peripheral):
+    """Independent watchdog: started by 0xCCCC, reloaded by 0xAAAA, PR/RLR writable after 0x5555; expires after
+    (RLR + 1) · 4 · 2^PR LSI periods without a reload."""
+
+    name = "IWDG"
+
+    def __init__(self, clock: Clock) -> None:
+        super().__init__(0x40003000, {0x00: 0, 0x04: 0, 0x08: 0xFFF, 0x0C: 0})
+        self.clock = clock
+        self.running = False
+        self.unlocked = False
+        self.reload_ns = 0
+        self.reloads = 0
+
+    def timeout_ns(self) -> int:
+        return round((self.regs[0x08] + 1) * 4 * (1 << self.regs[0x04]) * 1e9 / LSI_HZ)
+
+    def expires_ns(self) -> int | None:
+        return self.reload_ns + self.timeout_ns() if self.running else None
+
+    def write(self, off: int, value: int) -> None:
+        if off == 0x00:
+            key = value & 0xFFFF
+            if key == 0xCCCC:
+                self.running = True
+                self.reload_ns = self.clock.now_ns
+            elif key == 0xAAAA:
+                self.reload_ns = self.clock.now_ns
+                self.reloads += 1
+                self.unlocked = False
+            elif key == 0x5555:
+                self.unlocked = True
+            return
+        if off in (0x04, 0x08):
+            if not self.unlocked:
+                raise ModelError(f"board model: {self.reg_name(off)} written without the 0x5555 unlock key")
+            super().write(off, value & (7 if off == 0x04 else 0xFFF))
+            return
+        raise self.unknown(off, "write")

@@ -1,0 +1,123 @@
+"""The flashed image on the register-level STM32F401 model (hil_mock.board_model): the very furuta_fw.elf that
+scripts/build_firmware makes runs on unicorn's Cortex-M4 with models of the peripherals board.c uses.
+
+* Boot at register level: the clock tree, the tick timer, the watchdog and the pins as board.c leaves them.
+* A register the model does not implement is an error naming it, never a silent zero.
+* `furuta-rt run --mock --mock-firmware board` balances the simulated pendulum through the image for 10 s, with a
+  log read back by the mcap package's reader.
+
+Needs arm-none-eabi-gcc and picolibc (scripts/build_firmware, run first by scripts/test, installs them); skipped
+without them, as the other firmware tests.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from test_reliability_harness import DaemonProcess, read_summary, traceback_free
+
+from firmware_protocol import PROTOCOL_VERSION, SCHEMA_HASH, Hello, HelloAck, Sample, StreamDecoder, encode
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def image() -> Path:
+    if shutil.which("arm-none-eabi-gcc") is None:
+        pytest.skip("arm-none-eabi-gcc not installed; scripts/build_firmware installs it (as root with apt-get)")
+    from hil_mock.board_model.device import image_path
+
+    elf = image_path()
+    if not elf.is_file():
+        res = subprocess.run([str(ROOT / "scripts" / "build_firmware")], capture_output=True, text=True, timeout=600,
+                             check=False)
+        if res.returncode == 77:
+            pytest.skip(res.stderr.strip())
+        assert res.returncode == 0, res.stderr
+    return elf
+
+
+def test_the_image_boots_on_the_register_model(image: Path) -> None:
+    """Reset to the idle wfi: 84 MHz from the PLL, TIM5 ticking at 500 Hz with its interrupt, the IWDG at 50 ms,
+    TIM2 in encoder mode, TIM3 at 20 kHz with zero duty, DIR an output driven low."""
+    from hil_mock.board_model.mcu import Stm32f401
+
+    mcu = Stm32f401(image)
+    mcu.reset()
+    assert mcu.asleep and mcu.resets == 1
+    assert mcu.rcc.read(mcu.rcc.CFGR) & 0xC == 0x8  # SWS = PLL
+    pll = mcu.rcc.read(mcu.rcc.PLLCFGR)
+    assert (pll & 63, pll >> 6 & 511, ((pll >> 16 & 3) + 1) * 2) == (16, 336, 4)  # 16 MHz / 16 × 336 / 4 = 84 MHz
+    assert mcu.next_tick_ns() == 2_000_000 and mcu.nvic_enabled[50] and mcu.nvic_enabled[38]
+    assert mcu.iwdg.running and mcu.iwdg.timeout_ns() == 51_000_000  # (50 + 1) × 32 / 32 kHz
+    assert mcu.tim2.regs[mcu.tim2.SMCR] & 7 == 3 and mcu.tim3.regs[mcu.tim3.ARR] + 1 == 84_000_000 // 20_000
+    assert mcu.tim3.regs[mcu.tim3.CCR1] == 0 and mcu.gpioa.mode(7) == 1 and not mcu.gpioa.output(7)
+
+
+def test_a_handshake_and_samples_through_the_pins(image: Path) -> None:
+    """HELLO in on USART2's receiver, HELLO_ACK and SAMPLEs out on its transmitter; the SAMPLE carries the ADC codes
+    and the encoder count the model put on the pins (12-bit code − 2048), t_us the TIM5 period."""
+    from hil_mock.board_model.mcu import Stm32f401
+
+    mcu = Stm32f401(image)
+    mcu.adc_code = lambda ch: {4: 2048 + 100, 8: 2048 - 7}[ch]
+    mcu.encoder = lambda: -12345
+    mcu.reset()
+    mcu.receive(b"\x00" + encode(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 0xC0FFEE)))
+    for _ in range(3):
+        mcu.advance_to(mcu.next_tick_ns())
+    msgs = StreamDecoder().feed(bytes(mcu.tx))
+    ack = msgs[0]
+    assert isinstance(ack, HelloAck) and ack.nonce == 0xC0FFEE and ack.sample_rate_hz == 500
+    samples = [m for m in msgs if isinstance(m, Sample)]
+    assert [s.seq for s in samples] == [0, 1, 2]  # the HELLO is decoded at the first tick, which streams
+    assert (samples[0].theta_adc, samples[0].theta_dot_adc, samples[0].phi_count) == (100, -7, -12345)
+    assert samples[1].t_us - samples[0].t_us == 2000
+
+
+def test_a_register_the_model_lacks_is_an_error_naming_it(image: Path) -> None:
+    """Take ADC1_JSQR out of the model: the image's write to it stops the run with the register's name."""
+    from hil_mock.board_model.mcu import Stm32f401
+    from hil_mock.board_model.peripherals import Adc, ModelError
+
+    class AdcWithoutJsqr(Adc):
+        def write(self, off: int, value: int) -> None:
+            if off == self.JSQR:
+                raise self.unknown(off, "write")
+            super().write(off, value)
+
+    mcu = Stm32f401(image)
+    build = mcu._build
+
+    def build_without() -> None:
+        build()
+        mcu.adc = AdcWithoutJsqr()
+        mcu._by_page[mcu.adc.base >> 10] = mcu.adc
+
+    mcu._build = build_without  # type: ignore[method-assign]
+    with pytest.raises(ModelError, match=r"ADC1\+0x38 \(0x40012038\)"):
+        mcu.reset()
+
+
+@pytest.mark.hil
+def test_the_daemon_balances_through_the_flashed_image_for_10_s(image: Path, tmp_path: Path) -> None:
+    """`furuta-rt run --mock --mock-firmware board` with the macstepien rig (an H-bridge-driven dc motor, as the
+    board's 12 V PWM + DIR output): the real image, lockstep-paced, balances for 10 s of device time."""
+    log = tmp_path / "run.mcap"
+    d = DaemonProcess(["--mock", "--mock-firmware", "board", "--config", "macstepien", "--duration", "10", "--no-tui",
+                       "--mock-arg=--pacing=lockstep", "--log", str(log), "--summary-json", str(tmp_path / "summary.json")])
+    rc = d.wait(timeout=280)
+    assert traceback_free(d.stderr + d.stdout), d.stderr
+    assert rc == 0, f"exit {rc}\n{d.stderr}\n{d.stdout}"
+    assert "firmware 0.2.0" in d.stdout + d.stderr
+    s = read_summary(tmp_path)
+    assert s["end"] == "duration" and s["ticks"] == 10 * 500 and s["balanced_s"] > 9.9
+    with log.open("rb") as fh:
+        reader = make_reader(fh)
+        topics = {ch.topic for ch in reader.get_summary().channels.values()}
+        n = sum(st for st in reader.get_summary().statistics.channel_message_counts.values())
+    assert topics and n >= 10 * 500
