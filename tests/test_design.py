@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -91,3 +93,29 @@ def test_shipped_rigs_design(rig: str, capsys) -> None:
     assert main(["design", "--config", rig, "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["stable"]
+
+
+def test_design_output_at_160_columns(tmp_path, capsys, monkeypatch) -> None:
+    """The pole table's title is one line, each complex pair one row (±im), and an unstable loop has no margins."""
+    monkeypatch.setenv("COLUMNS", "160")
+    assert main(["design"]) == 0
+    out = capsys.readouterr().out
+    assert any(line.startswith("closed-loop poles (plant + filter + observer + command delay") for line in out.splitlines())
+    rows = [line for line in out.splitlines() if line.startswith("│")]
+    ims = [line.split("│")[2].strip() for line in rows]
+    res = [line.split("│")[1].strip() for line in rows]
+    assert all(im == "0" or im.startswith("±") for im in ims) and len(res) == len(set(res))  # a pair: one row
+    assert "stable for loop gain" in out
+    thesis = (Path(__file__).resolve().parents[1] / "furuta_rt" / "rigs" / "thesis.toml").read_text()
+    rig = tmp_path / "slow_filter.toml"
+    rig.write_text(re.sub(r"(?m)^bessel_cutoff = .*$", "bessel_cutoff = 15.0", thesis))
+    assert main(["design", "--config", str(rig)]) == 1
+    out = capsys.readouterr().out
+    assert "closed loop UNSTABLE" in out and "stable for loop gain" not in out and "margins: none" in out
+
+
+def test_design_help_has_a_description() -> None:
+    from furuta_rt.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if getattr(a, "choices", None) and "design" in a.choices)
+    assert "closed-loop poles" in (sub.choices["design"].description or "")

@@ -16,7 +16,11 @@ from furuta_rt.model.plant import FurutaPlant
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("design", help="print the gains, closed-loop poles and stability margins")
+    p = sub.add_parser(
+        "design", help="print the gains, closed-loop poles and stability margins",
+        description="The state-feedback gains of the rig's design (eq. 7 pole placement, or LQR, or --gains), the "
+        "closed-loop poles of the sampled loop with the θ filter, the observer and the command delay, and the gain and "
+        "phase margins. Exit 0 when the closed loop is stable, 1 when it is not, 2 on bad input.")
     add_config_argument(p)
     p.add_argument("--gains", metavar="L1,L2,L3,L4", help="analyse these gains instead of the configured design")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -58,6 +62,22 @@ def design_report(args: argparse.Namespace) -> dict:
     return out
 
 
+def pole_rows(poles: list[list[float]], rate_hz: float) -> list[tuple[float, str, str]]:
+    """The poles as table rows, slowest first, each complex pair as one row ``±im``. A sampled pole on the negative
+    real axis (z < 0) has no continuous equivalent of its own: it is shown at the Nyquist frequency, ±π·rate."""
+    nyquist = np.pi * rate_hz
+    rows: dict[tuple[float, float], tuple[float, str, str]] = {}
+    for re, im in poles:
+        key = (round(re, 6), round(abs(im), 6))
+        if abs(abs(im) - nyquist) < 1e-6 * nyquist:
+            rows[key] = (re, f"±{nyquist:.3f}", "z < 0: oscillates every tick")
+        elif abs(im) > 1e-9:
+            rows[key] = (re, f"±{abs(im):.3f}", "")
+        else:
+            rows[key] = (re, "0", "")
+    return sorted(rows.values(), key=lambda r: -r[0])
+
+
 def run(args: argparse.Namespace) -> int:
     out = design_report(args)
     if args.json:
@@ -71,15 +91,20 @@ def run(args: argparse.Namespace) -> int:
     con.print("u = L·x,  L = [" + ", ".join(f"{v:.4f}" for v in out["L"]) + "]")
     if "L_place" in out:
         con.print("cross-check python-control place: [" + ", ".join(f"{v:.4f}" for v in out["L_place"]) + "]")
-    t = Table(title="closed-loop poles (plant + filter + observer + command delay, continuous equivalent)")
+    con.print("[bold]closed-loop poles[/] (plant + filter + observer + command delay, continuous equivalent):")
+    t = Table()
     t.add_column("re (1/s)", justify="right")
     t.add_column("im (rad/s)", justify="right")
-    for re, im in out["poles"]:
-        t.add_row(f"{re:.3f}", f"{im:.3f}")
+    for re, im, note in pole_rows(out["poles"], out["rate_hz"]):
+        t.add_row(f"{re:.3f}", im, note)
     con.print(t)
     con.print("designed poles (no filter/observer/delay): " + ", ".join(f"{re:.2f}{im:+.2f}j" for re, im in out["ideal_poles"]))
     gm = out["gain_margin"]
-    con.print(f"gain margin: stable for loop gain × [{gm[0]:.3f}, {gm[1]:.3f}]   phase margin: {out['phase_margin_deg']:.1f}°")
+    if out["stable"]:
+        con.print(f"gain margin: stable for loop gain × [{gm[0]:.3f}, {gm[1]:.3f}]   "
+                  f"phase margin: {out['phase_margin_deg']:.1f}°")
+    else:
+        con.print("gain and phase margins: none (the loop is unstable at its own gain)")
     con.print("[green]closed loop stable[/]" if out["stable"] else "[bold red]closed loop UNSTABLE[/]")
     for note in out["notes"]:
         con.print(f"[yellow]note:[/] {note}")
