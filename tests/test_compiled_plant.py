@@ -157,3 +157,15 @@ def test_hil_mock_device_defaults_to_c_firmware_and_compiled_plant_with_the_same
     phi = [m.phi_count for f in frames["compiled"] for m in StreamDecoder().feed(f)]
     assert max(phi) - min(phi) > 20  # the arm moved under the reversing torque (71 counts): not a resting rig
     assert frames["compiled"] == frames["python"]
+
+
+def test_one_reading_quantises_as_an_array_does() -> None:
+    """count_of's single-reading path (the DAQ's tick, without numpy) gives the array path's counts, ties included."""
+    import numpy as np
+
+    from furuta_rt.model.sensors import count_of
+
+    step = 2 * math.pi / 4096
+    x = np.concatenate([np.linspace(-7.0, 7.0, 4001), (np.arange(-50, 50) + 0.5) * step, [0.0, -0.0, 1e-300]])
+    for phase in (0.0, 0.25, -0.3):
+        assert [count_of(float(v), step, phase) for v in x] == count_of(x, step, phase).tolist()
