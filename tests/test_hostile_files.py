@@ -14,7 +14,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_reliability_harness import FURUTA_RT, ROOT, MockProcess, read_summary, start_daemon, traceback_free
+from test_reliability_harness import (
+    FURUTA_RT,
+    ROOT,
+    MockProcess,
+    read_summary,
+    start_daemon,
+    traceback_free,
+    write_test_rig,
+)
 
 from furuta_rt.io.mcap_read import read_log
 
@@ -178,3 +186,31 @@ def test_a_convert_stopped_by_a_signal_leaves_no_partial_file(tmp_path: Path, si
     assert proc.returncode == 128 + sig, err
     assert len(err.strip().splitlines()) == 1 and "interrupted" in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.csv"], "a .partial (or a half output) was left"
+
+
+def test_two_runs_started_together_on_one_log_the_loser_claims_none_of_its_ticks(tmp_path: Path) -> None:
+    """Both pass the start-up check (the log does not exist yet); the logger that creates it first wins (O_EXCL).
+    The loser says it could not write the log, exits 3 and counts 0 ticks in it, not the winner's."""
+    shared = tmp_path / "shared.mcap"
+    mocks = []
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        mocks.append((tmp_path / name, MockProcess(tmp_path / name, [])))
+    rigs = [write_test_rig(d) for d, _ in mocks]
+    runs = [(d, mock, start_daemon(d, mock.port, duration=3.0, rig=rig, extra=["--log", str(shared)]))
+            for (d, mock), rig in zip(mocks, rigs, strict=True)]
+    codes = {}
+    try:
+        for d, _, daemon in runs:
+            codes[d.name] = daemon.wait()
+    finally:
+        for _, mock, daemon in runs:
+            daemon.kill_group(signal.SIGKILL)
+            mock.stop()
+    assert sorted(codes.values()) == [0, 3], {d.name: daemon.stderr for d, _, daemon in runs}
+    winner = next(d for d in codes if codes[d] == 0)
+    loser = next(d for d in codes if codes[d] == 3)
+    assert read_summary(tmp_path / loser)["log_ticks"] == 0
+    assert read_summary(tmp_path / winner)["log_ticks"] == read_log(shared).n_ticks > 0
+    loser_err = next(daemon.stderr for d, _, daemon in runs if d.name == loser)
+    assert traceback_free(loser_err) and "shared.mcap" in loser_err

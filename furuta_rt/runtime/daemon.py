@@ -156,6 +156,7 @@ class _Children:
         self.ctx = multiprocessing.get_context("spawn")
         self.log_q: Any = None
         self.log_failed: Any = None
+        self.log_opened: Any = None
         self.logger: Any = None
         self.dash_q: Any = None
         self.dashboard: Any = None
@@ -165,7 +166,9 @@ class _Children:
         self.log_q = Channel(LOG_QUEUE_BATCHES)  # pipes, not multiprocessing's named semaphores (channel.py)
         self._ready = Flag()
         self.log_failed = Flag()
-        proc = self.ctx.Process(target=logger_process, args=(setup, self.log_q, self._ready, self.log_failed),
+        self.log_opened = Flag()
+        proc = self.ctx.Process(target=logger_process,
+                                args=(setup, self.log_q, self._ready, self.log_failed, self.log_opened),
                                 name="furuta-rt-logger")
         proc.start()
         self.logger = proc
@@ -399,7 +402,8 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
             mock_stats = _stop_mock(mock_proc)
     log_ticks = None
     if not log_ok and opts.log_path and result is not None:  # say what the file holds, not what was sent to it
-        log_ticks = _ticks_on_disk(opts.log_path)
+        # a file this run never opened (another run created it first) holds none of this run's ticks
+        log_ticks = _ticks_on_disk(opts.log_path) if children.log_opened.is_set() else 0
         summary = format_summary(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path,
                                  limits=_limits_text(opts, rate), log_ticks=log_ticks, log_incomplete=True,
                                  injected=mock_injections(opts.mock_args), **comp)

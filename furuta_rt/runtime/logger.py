@@ -141,7 +141,7 @@ def _failure(path: str, err: Exception) -> str:
     return f"cannot write the log {path}: {cause}; the loop goes on, the log ends here"
 
 
-def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None) -> None:
+def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None, opened: Any = None) -> None:
     """Entry point of the logger process (spawned). Ends on "close" or when the parent dies.
 
     A write error (disk full, file too large, ...) is said in one line on stderr and flagged in
@@ -181,6 +181,8 @@ def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None) -> N
         try:
             if log is not None and item is not None and not log.handle(item):
                 break
+            if opened is not None and item is not None and item[0] == "open" and log is not None:
+                opened.set()  # the file is ours (created or replaced by this run): its ticks are this run's
             now = time.monotonic()
             if log is not None and now - last_flush >= setup.flush_s:
                 log.flush()
