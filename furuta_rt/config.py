@@ -7,6 +7,7 @@ beyond eq. 4 (``[effects]``, see furuta_rt.model.effects). Shipped rigs live in 
 
 from __future__ import annotations
 
+import difflib
 import math
 from pathlib import Path
 from typing import Annotated, Literal
@@ -351,7 +352,16 @@ def require_plausible(rig: RigConfig, source: str) -> RigConfig:
 
 
 def _format_validation_error(source: str, err: ValidationError) -> str:
-    first = err.errors()[0]
+    errors = err.errors()
+    unknown = [".".join(str(p) for p in e["loc"]) for e in errors if e["type"] == "extra_forbidden"]
+    missing = [".".join(str(p) for p in e["loc"]) for e in errors if e["type"] == "missing"]
+    if unknown and missing:  # a misspelt required table or key: both halves of the one mistake, in one line
+        near = difflib.get_close_matches(missing[0], unknown, n=1, cutoff=0.5)
+        typo = f"'{near[0]}' is not a key; did you mean '{missing[0]}'? " if near else f"unknown key(s) {unknown}; "
+        rest = len(errors) - 2 if near else len(errors) - len(unknown) - 1
+        more = f" (and {rest} more problem(s))" if rest > 0 else ""
+        return f"{source}: {typo}'{missing[0]}' is required and missing{more}"
+    first = errors[0]
     loc = ".".join(str(p) for p in first["loc"]) or "(top level)"
     msg = first["msg"].removeprefix("Value error, ")
     if first["type"] == "extra_forbidden":

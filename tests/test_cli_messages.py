@@ -83,3 +83,29 @@ def test_every_angle_rate_and_torque_limit_is_checked(sections: dict, key: str, 
 def test_the_shipped_rigs_are_plausible() -> None:
     for name in ("thesis", "qube_servo2", "macstepien"):
         assert implausible(load_rig(name)) == [], name
+
+
+def test_a_misspelt_table_names_the_unknown_one_and_the_missing_one(tmp_path: Path) -> None:
+    thesis = (Path(__file__).resolve().parents[1] / "furuta_rt" / "rigs" / "thesis.toml").read_text()
+    rig = tmp_path / "rig.toml"
+    rig.write_text(thesis.replace("[plant]", "[plnt]", 1))
+    line = one_line(furuta("design", "--config", str(rig)))
+    assert "'plnt' is not a key; did you mean 'plant'?" in line and "'plant' is required and missing" in line, line
+    assert "Field required" not in line
+
+
+def test_an_effect_value_that_is_not_a_number_says_so() -> None:
+    from furuta_rt.model.effects import parse_effect_assignment
+
+    with pytest.raises(ValueError, match="the value 'abc' is not a number"):
+        parse_effect_assignment("arm_coulomb.Fc=abc")
+    with pytest.raises(ValueError, match=re.escape("is not of the form name.param=value")):
+        parse_effect_assignment("arm_coulomb=0.3")
+    line = one_line(furuta("run", "--mock", "--mock-effect", "arm_coulomb.Fc=abc", "--duration", "1", "--no-tui"))
+    assert "the value 'abc' is not a number" in line and "not of the form" not in line, line
+
+
+def test_help_texts_read_as_english() -> None:
+    for command in (["analyze", "limit-cycle"], ["diagnose"], ["replay"], ["convert"], ["run"]):
+        text = " ".join(furuta(*command, "--help").stdout.split())
+        assert "existing a " not in text and "replace the existing" in text, command

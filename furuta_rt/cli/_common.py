@@ -46,5 +46,5 @@ def add_force_argument(parser: argparse.ArgumentParser, outputs: str,
     """``--force``: the one way to let a command replace existing files (``outputs``: which, in words;
     ``when``: when the old ones are replaced)."""
     parser.add_argument("--force", action="store_true",
-                        help=f"replace existing {outputs} ({when}); without it an existing output file is refused "
+                        help=f"replace the existing {outputs} ({when}); without it an existing output file is refused "
                         "(exit 2) before any work is done")

@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "Bessel path, observer, delay, saturation; no noise) or both (default: ideal)")
     lc.add_argument("--plot", metavar="FILE.png", help="write the Nyquist plot with the describing-function locus")
     lc.add_argument("--json", action="store_true", help="print one JSON object")
-    add_force_argument(lc, "a --plot file")
+    add_force_argument(lc, "--plot file")
     lc.set_defaults(func=run_limit_cycle)
 
 

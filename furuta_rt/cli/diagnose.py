@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--theta-filter", metavar="none|RAD_S", default=None,
                    help="the θ channel's Bessel cutoff instead of the config's; 'none' for an encoder on the pendulum")
     p.add_argument("--no-closed-loop", action="store_true", help="skip the closed-loop re-simulation (faster)")
-    add_force_argument(p, "a --json file and an earlier report in --report's directory")
+    add_force_argument(p, "--json file and the earlier report in --report's directory")
     p.set_defaults(func=run)
 
 

@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("-o", "--output", required=True, metavar="PLAN.toml", help="the plan to write (an existing file "
                    "only with --force)")
     add_config_argument(d)
-    add_force_argument(d, "the plan file")
+    add_force_argument(d, "plan file")
     d.add_argument("--budget", type=float, default=30.0, metavar="S", help="seconds of excitation (default 30; the "
                    "settling second and the return to 0 come on top)")
     d.add_argument("--pair", metavar="A,B", help="which look-alike, when the report has several (default: the first)")

@@ -169,9 +169,12 @@ def parse_effect_assignment(text: str) -> tuple[str, str, float]:
     try:
         lhs, value = text.split("=", 1)
         name, param = lhs.strip().split(".", 1)
-        number = float(value)
     except ValueError:
         raise ValueError(f"effect {text!r} is not of the form name.param=value (e.g. arm_coulomb.Fc=0.3)") from None
+    try:
+        number = float(value)
+    except ValueError:
+        raise ValueError(f"effect {text!r}: the value {value.strip()!r} is not a number (e.g. {lhs.strip()}=0.3)") from None
     if name not in EFFECT_TYPES:
         raise ValueError(f"unknown effect {name!r}; known effects: {', '.join(EFFECT_TYPES)}")
     if param not in EFFECT_TYPES[name].model_fields:
