@@ -20,7 +20,7 @@ import pytest
 from mcap.reader import make_reader
 from test_reliability_harness import DaemonProcess, read_summary, traceback_free
 
-from firmware_protocol import PROTOCOL_VERSION, SCHEMA_HASH, Hello, HelloAck, Sample, StreamDecoder, encode
+from firmware_protocol import PROTOCOL_VERSION, SCHEMA_HASH, Hello, HelloAck, Sample, StatusFlags, StreamDecoder, encode
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -121,3 +121,24 @@ def test_the_daemon_balances_through_the_flashed_image_for_10_s(image: Path, tmp
         topics = {ch.topic for ch in reader.get_summary().channels.values()}
         n = sum(st for st in reader.get_summary().statistics.channel_message_counts.values())
     assert topics and n >= 10 * 500
+
+
+def _samples_with(image: Path, theta_code: int, theta_dot_code: int, ticks: int = 3) -> list[Sample]:
+    from hil_mock.board_model.mcu import Stm32f401
+
+    mcu = Stm32f401(image)
+    mcu.adc_code = lambda ch: {4: theta_code, 8: theta_dot_code}[ch]
+    mcu.reset()
+    mcu.receive(b"\x00" + encode(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 1)))
+    for _ in range(ticks):
+        mcu.advance_to(mcu.next_tick_ns())
+    return [m for m in StreamDecoder().feed(bytes(mcu.tx)) if isinstance(m, Sample)]
+
+
+def test_a_wrapping_theta_sensor_at_its_wrap_is_not_over_range(image: Path) -> None:
+    """The pendulum hanging reads θ at the wrap of a full-turn sensor (12-bit code 0 and 4095 alternate with noise):
+    no ADC_OVERRANGE, which would forbid the swing-up; θ̇ (an analog rate that saturates) at a rail still latches it."""
+    over = int(StatusFlags.ADC_OVERRANGE)
+    for code in (0, 4095):
+        assert not any(s.status & over for s in _samples_with(image, code, 2048)), code
+    assert all(s.status & over for s in _samples_with(image, 2048, 0))

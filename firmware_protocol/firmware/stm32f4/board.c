@@ -20,6 +20,13 @@
 #include "ring.h"
 
 #define PWM_TOP (BOARD_TIMER_HZ / BOARD_PWM_HZ) /* 4200 timer counts per PWM period */
+#if BOARD_THETA_WRAPS
+#define THETA_RAIL_MIN (-(1L << 20)) /* a wrapping θ has no rail: outside every reading */
+#define THETA_RAIL_MAX (1L << 20)
+#else
+#define THETA_RAIL_MIN BOARD_ADC_MIN
+#define THETA_RAIL_MAX BOARD_ADC_MAX
+#endif
 #define PIN_DIR 7u                              /* PA7 */
 
 struct fw_hal {
@@ -42,8 +49,8 @@ static const fw_board_t board = {
     BOARD_PHI_COUNTS_PER_REV,
     BOARD_ACTUATOR_FULL_SCALE,
     BOARD_ACTUATOR_KIND,
-    BOARD_ADC_MIN, /* the rails of the readings, whatever the offsets */
-    BOARD_ADC_MAX,
+    THETA_RAIL_MIN, /* the rails of the readings, whatever the offsets */
+    THETA_RAIL_MAX,
     BOARD_ADC_MIN,
     BOARD_ADC_MAX,
 };

@@ -18,6 +18,9 @@
  * counts are the 12-bit ADC reading minus 2048 (mid-scale), so the rails are -2048 and +2047. */
 #define BOARD_THETA_RAD_PER_COUNT 0.0015339808f /* 2 pi / 4096 */
 #define BOARD_THETA_OFFSET_COUNTS 0             /* counts at theta = 0 (upright): calibrate */
+/* 1: θ's sensor covers a full turn and wraps (0 V follows 3.3 V: AS5600, a continuous-turn potentiometer), so a
+ * reading at 0 or 4095 is the pendulum passing the wrap, not a rail; 0: it saturates at the rails (ADC_OVERRANGE). */
+#define BOARD_THETA_WRAPS 1
 /* θ̇: an analog differentiator (or tacho) on PB0, 0 rad/s at mid-scale. */
 #define BOARD_THETA_DOT_RAD_S_PER_COUNT 0.01f /* +-20 rad/s over the ADC range */
 #define BOARD_THETA_DOT_OFFSET_COUNTS 0
