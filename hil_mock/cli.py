@@ -24,6 +24,7 @@ from pathlib import Path
 from firmware_protocol.hostbuild import BuildError
 from furuta_rt.errors import UserError
 from furuta_rt.io.output import claim_outputs, write_text
+from furuta_rt.tomlfile import read_toml
 from hil_mock.config import MockConfig, build_config
 from hil_mock.device import VirtualDevice
 
@@ -36,8 +37,10 @@ def build_parser() -> argparse.ArgumentParser:
         description="Simulated Furuta pendulum DAQ speaking firmware_protocol on a pseudo-terminal.",
     )
     p.add_argument("--pty", action="store_true", help="serve on a new pseudo-terminal (the only mode; default)")
-    p.add_argument("--config", metavar="FILE", help="mock TOML file (rig, [effects], [device], [faults])")
-    p.add_argument("--rig", help="rig TOML file or shipped rig (overrides the file's 'rig'; default thesis)")
+    p.add_argument("--mock-config", metavar="FILE", help="mock TOML file (rig, [effects], [device], [faults])")
+    p.add_argument("--config", metavar="FILE", help="a rig TOML file, as furuta-rt's --config (the same as --rig); a "
+                   "mock TOML given here is read as --mock-config, with a note")
+    p.add_argument("--rig", help="rig TOML file or shipped rig (overrides the mock file's 'rig'; default thesis)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME.PARAM=VALUE",
                    help="add an effect, e.g. arm_coulomb.Fc=0.3 (repeatable; overrides the file)")
     p.add_argument("--rate", type=int, metavar="HZ", help="sample rate (default: the rig's control.rate_hz)")
@@ -86,10 +89,31 @@ def _initial_theta(args: argparse.Namespace) -> float | None:
     return args.initial_theta
 
 
+def _config_and_rig(args: argparse.Namespace) -> tuple[str | None, str | None]:
+    """(mock TOML, rig) from --mock-config, --config and --rig: ``--config`` names a rig, as everywhere in furuta-rt;
+    a mock TOML given there (no [plant] table) is still read as one, and said."""
+    if args.config is None:
+        return args.mock_config, args.rig
+    try:
+        is_rig = "plant" in read_toml(args.config, kind="config file")[0]
+    except (UserError, OSError):
+        is_rig = True  # let the rig loader say what is wrong with it
+    if not is_rig:
+        if args.mock_config is not None:
+            raise UserError(f"--config {args.config} is a mock TOML and --mock-config is given too; give one")
+        print(f"hil-mock: note: --config {args.config} is a mock TOML (no [plant]); read as --mock-config "
+              "(--config names a rig, as in furuta-rt)", file=sys.stderr, flush=True)
+        return args.config, args.rig
+    if args.rig is not None:
+        raise UserError(f"--config {args.config} and --rig {args.rig} both name the rig; give one")
+    return args.mock_config, args.config
+
+
 def config_from_args(args: argparse.Namespace) -> MockConfig:
+    mock_toml, rig = _config_and_rig(args)
     return build_config(
-        args.config,
-        rig=args.rig,
+        mock_toml,
+        rig=rig,
         effects=args.effect,
         faults=args.fault,
         device={

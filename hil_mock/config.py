@@ -41,7 +41,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from furuta_rt.config import RigConfig, load_rig
+from furuta_rt.config import RigConfig, load_rig, require_plausible
 from furuta_rt.errors import UserError
 from furuta_rt.model.effects import Effects, effects_from_assignments
 from furuta_rt.tomlfile import read_toml
@@ -104,7 +104,7 @@ class MockConfig(_Section):
         rig = self.rig
         if self.base_dir is not None and rig.endswith(".toml") and not Path(rig).is_absolute():
             rig = str(self.base_dir / rig)
-        return load_rig(rig)
+        return require_plausible(load_rig(rig), rig)  # a length in cm is refused here as furuta-rt run refuses it
 
     def rate_hz(self, rig: RigConfig) -> int:
         return self.device.rate_hz if self.device.rate_hz is not None else round(rig.control.rate_hz)

@@ -271,7 +271,7 @@ BAD_MOCK = {
 
 @pytest.mark.parametrize("bad", list(BAD_MOCK))
 def test_bad_mock_config(files: dict[str, Path], bad: str) -> None:
-    rc, _, err = _call(mock_main, ["--pty", "--config", str(files[bad]), "--duration", "0.1"])
+    rc, _, err = _call(mock_main, ["--pty", "--mock-config", str(files[bad]), "--duration", "0.1"])
     _check(rc, err, *BAD_MOCK[bad])
 
 
@@ -297,7 +297,7 @@ def test_console_script_one_line_exit_2(files: dict[str, Path], argv: list[str])
 
 
 def test_hil_mock_console_script_one_line_exit_2(files: dict[str, Path]) -> None:
-    proc = subprocess.run([sys.executable, "-m", "hil_mock", "--config", str(files["mock_unknown_key.toml"])],
+    proc = subprocess.run([sys.executable, "-m", "hil_mock", "--mock-config", str(files["mock_unknown_key.toml"])],
                           capture_output=True, text=True, timeout=120, cwd=ROOT)
     _check(proc.returncode, proc.stderr, "rate_hzz")
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -109,3 +110,24 @@ def test_help_texts_read_as_english() -> None:
     for command in (["analyze", "limit-cycle"], ["diagnose"], ["replay"], ["convert"], ["run"]):
         text = " ".join(furuta(*command, "--help").stdout.split())
         assert "existing a " not in text and "replace the existing" in text, command
+
+
+def _hil_mock(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "hil_mock", "--pty", "--duration", "0.3", *args],
+                          capture_output=True, text=True, timeout=60)
+
+
+def test_hil_mock_checks_the_rig_as_run_does_and_config_names_a_rig(tmp_path: Path) -> None:
+    thesis = (Path(__file__).resolve().parents[1] / "furuta_rt" / "rigs" / "thesis.toml").read_text()
+    cm = tmp_path / "cm.toml"
+    cm.write_text(re.sub(r"(?m)^l = .*$", "l = 41.3", thesis))
+    for flag in ("--rig", "--config"):  # --config is a rig, as everywhere in furuta-rt
+        line = one_line(_hil_mock(flag, str(cm)))
+        assert line.startswith("hil-mock: error:") and "plant.l" in line and "41.3 cm = 0.413 m" in line, line
+    mock = tmp_path / "mock.toml"
+    mock.write_text('rig = "thesis"\n')
+    old = _hil_mock("--config", str(mock))  # the old use of --config still works, and says what it did
+    assert old.returncode == 0 and traceback_free(old.stderr), old.stderr
+    assert "is a mock TOML" in old.stderr and "--mock-config" in old.stderr and "serving on" in old.stdout + old.stderr
+    new = _hil_mock("--mock-config", str(mock))
+    assert new.returncode == 0 and "note" not in new.stderr, new.stderr
