@@ -142,3 +142,27 @@ def test_a_wrapping_theta_sensor_at_its_wrap_is_not_over_range(image: Path) -> N
     for code in (0, 4095):
         assert not any(s.status & over for s in _samples_with(image, code, 2048)), code
     assert all(s.status & over for s in _samples_with(image, 2048, 0))
+
+
+def test_a_direction_change_never_drives_the_old_duty_the_new_way(image: Path) -> None:
+    """TIM3's duty is preloaded (it takes effect at the PWM period's end) while DIR is a plain pin: a reversal must
+    not leave the old duty running in the new direction. Right after the tick that reverses +16000 to −16000, the
+    duty TIM3 is driving is 0; the new one takes over at the next PWM period."""
+    from firmware_protocol import Command, CommandFlags
+    from hil_mock.board_model.mcu import Stm32f401
+
+    mcu = Stm32f401(image)
+    mcu.adc_code = lambda ch: 2048
+    mcu.reset()
+    mcu.receive(b"\x00" + encode(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 1)))
+    mcu.advance_to(mcu.next_tick_ns())  # SAMPLE 0
+    for seq, counts in ((0, 16000), (1, 16000), (2, -16000)):
+        mcu.receive(encode(Command(seq, counts, int(CommandFlags.ENABLE))))
+        mcu.advance_to(mcu.next_tick_ns())  # applies it
+        tim3 = mcu.tim3
+        assert mcu.gpioa.output(7) == (counts > 0)
+        if seq == 2:
+            assert tim3.ccr1_active == 0, "the old duty drives the reversed bridge"
+            assert tim3.regs[tim3.CCR1] == 16000 * 4200 // 32767
+        mcu.advance_to(mcu.clock.now_ns + 100_000)  # two PWM periods: the preload is in force
+        assert tim3.ccr1_active == 16000 * 4200 // 32767

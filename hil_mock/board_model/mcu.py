@@ -390,6 +390,7 @@ class Stm32f401:
             if t_next > t_ns:
                 break
             self.clock.now_ns = t_next
+            self.tim3.sync()
             if t_wdg is not None and t_next == t_wdg:
                 self.watchdog_resets += 1
                 self.reset()
@@ -397,6 +398,7 @@ class Stm32f401:
             self.tim5.update_event(t_next)
             self.deliver()
         self.clock.now_ns = max(self.clock.now_ns, t_ns)
+        self.tim3.sync()
 
     def pause(self, dt_ns: int) -> None:
         """The whole board held for ``dt_ns`` (timers, watchdog and cycle counter frozen): device time moves on."""

@@ -158,6 +158,15 @@ class Timer(Peripheral):
         ticks = self.arr_active + 1 - cnt if cnt <= self.arr_active else self.mask + 1 - cnt + self.arr_active + 1
         return self.clock.now_ns + max(1, round(ticks * self.tick_ns()))
 
+    def sync(self) -> None:
+        """Update events of a timer without interrupt (TIM3's PWM period) up to now: the preloads transfer."""
+        if self.counting() and (self.clock.now_ns - self.t0_ns) / self.tick_ns() >= self.arr_active + 1:
+            periods = int((self.clock.now_ns - self.t0_ns) / self.tick_ns()) // (self.arr_active + 1)
+            self.t0_ns += round(periods * (self.arr_active + 1) * self.tick_ns())
+            self.arr_active = self.regs[self.ARR]
+            self.ccr1_active = self.regs[self.CCR1]
+            self.regs[self.SR] |= 1
+
     def update_event(self, at_ns: int) -> None:
         """Counter reached ARR (or UG): back to 0, preloads transfer, UIF set."""
         self.t0_ns = at_ns

@@ -93,8 +93,16 @@ int16_t hal_adc_theta_dot(fw_hal_t *h)
 void hal_actuator_write(fw_hal_t *h, int16_t counts)
 {
     uint32_t mag = (uint32_t)(counts < 0 ? -(int32_t)counts : (int32_t)counts);
+    uint32_t dir_high = (GPIO_ODR(GPIOA_BASE) >> PIN_DIR) & 1u;
     (void)h;
-    GPIO_BSRR(GPIOA_BASE) = counts > 0 ? (1u << PIN_DIR) : (1u << (PIN_DIR + 16u));
+    if ((counts > 0) != (dir_high != 0u)) {
+        /* direction change: the duty runs from a preload, so the old duty would drive the new direction until the
+         * PWM period ends; zero it now (UG transfers the preload and restarts the period with the output low), then
+         * turn the bridge round while it does not drive */
+        TIM_CCR1(TIM3_BASE) = 0u;
+        TIM_EGR(TIM3_BASE) = TIM_EGR_UG;
+        GPIO_BSRR(GPIOA_BASE) = counts > 0 ? (1u << PIN_DIR) : (1u << (PIN_DIR + 16u));
+    }
     TIM_CCR1(TIM3_BASE) = mag * PWM_TOP / 32767u;
 }
 

@@ -40,6 +40,7 @@
 #define GPIO_MODER(b) REG32((b) + 0x00u)
 #define GPIO_OSPEEDR(b) REG32((b) + 0x08u)
 #define GPIO_PUPDR(b) REG32((b) + 0x0Cu)
+#define GPIO_ODR(b) REG32((b) + 0x14u)
 #define GPIO_BSRR(b) REG32((b) + 0x18u)
 #define GPIO_AFRL(b) REG32((b) + 0x20u)
 #define GPIO_MODE_OUT 1u
