@@ -151,16 +151,20 @@ def rk4(f, x: list[float], dt: float, steps: int) -> list[float]:
     return x
 
 
-def simulate(case: Case, duration: float, noise: bool = True) -> Recording:
+def simulate(case: Case, duration: float, noise: bool = True, noise_scale: float = 1.0, prefilter: float = 0.0,
+             coloured: float = 0.0) -> Recording:
     """``duration`` s of the case balanced by the LQR; ``noise``: the sensors' Gaussian noise on θ and θ̇ (the
-    encoder's quantisation of φ stays)."""
+    encoder's quantisation of φ stays), ``noise_scale`` × its level. Noise a config cannot state (the specificity
+    benchmark, suite_null): ``prefilter`` rad of white noise per tick at the Bessel filter's input (held over the
+    tick: flat far beyond the filter's band), ``coloured`` × the white levels of first-order low-passed noise (corner
+    40 Hz) on θ and θ̇."""
     plant = Lagrangian(case.rig)
 
-    def rhs(x: list[float], tau: float) -> list[float]:
+    def rhs(x: list[float], tau: float, w: float) -> list[float]:
         th, thd, _ph, phd, y, yd = x
         fr = -case.arm_viscous * phd - case.arm_coulomb * math.tanh(phd / COULOMB_VS)
         thdd, phdd = plant.accelerations(th, thd, phd, -case.pendulum_viscous * thd, tau + fr)
-        return [thd, thdd, phd, phdd, yd, b0 * th - a1 * yd - a0 * y]
+        return [thd, thdd, phd, phdd, yd, b0 * (th + w) - a1 * yd - a0 * y]
 
     K = lqr(Lagrangian(Rig()))  # the controller is designed on the datasheet rig
     b0, a1, a0 = bessel()
@@ -173,10 +177,15 @@ def simulate(case: Case, duration: float, noise: bool = True) -> Recording:
     rec = {k: np.empty(n) for k in ("theta", "theta_dot", "phi", "u")}
     true = {k: np.empty(n) for k in ("true_theta", "true_theta_dot", "true_phi", "true_phi_dot", "bessel_y", "bessel_yd")}
     phi_prev, v_hat, tau_v = 0.0, 0.0, 0.01
+    c_th = c_thd = 0.0
+    pole = math.exp(-2 * math.pi * 40.0 * h)
     for k in range(n):
         t = k * h
-        theta_m = s[4] + noise * THETA_NOISE * rng.standard_normal()
-        theta_dot_m = s[5] + noise * THETA_DOT_NOISE * rng.standard_normal()
+        if coloured:
+            c_th = pole * c_th + math.sqrt(1 - pole**2) * coloured * THETA_NOISE * rng.standard_normal()
+            c_thd = pole * c_thd + math.sqrt(1 - pole**2) * coloured * THETA_DOT_NOISE * rng.standard_normal()
+        theta_m = s[4] + noise * noise_scale * THETA_NOISE * rng.standard_normal() + c_th
+        theta_dot_m = s[5] + noise * noise_scale * THETA_DOT_NOISE * rng.standard_normal() + c_thd
         phi_m = round(s[2] / (2 * math.pi) * COUNTS) * 2 * math.pi / COUNTS
         if k:
             v_hat += (h / (tau_v + h)) * ((phi_m - phi_prev) / h - v_hat)
@@ -189,7 +198,8 @@ def simulate(case: Case, duration: float, noise: bool = True) -> Recording:
         pending.append(u)
         acting = case.gain * pending.pop(0)  # the command of tick k acts from tick k + latency
 
-        s = rk4(lambda x, tau=acting: rhs(x, tau), s, h / SUBSTEPS, SUBSTEPS)
+        w = prefilter * rng.standard_normal() if prefilter else 0.0
+        s = rk4(lambda x, tau=acting, w=w: rhs(x, tau, w), s, h / SUBSTEPS, SUBSTEPS)
         if abs(s[0]) > 0.6:
             raise RuntimeError(f"{case.name}: the independent controller lost the pendulum at t = {t:.2f} s")
     return Recording(t=np.arange(n) * h, **rec, extra=true, meta={"case": case.name, "simulator": "independent (scipy)"})

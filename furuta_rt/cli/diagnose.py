@@ -57,10 +57,15 @@ def load(path: str, config: str | None, mapping: str | None, overrides: list[str
     if p.is_dir():
         raise UserError(f"recording {p} is a directory; give an MCAP log or a CSV file")
     rig = load_rig(config) if config else None
+    if p.suffix.lower() == ".mcap" and not is_mcap(p):
+        raise UserError(f"{p} is named .mcap but is not an MCAP file (it does not start with the MCAP magic); "
+                        "give a log written by furuta-rt run, or a CSV named .csv")
     if is_mcap(p):
         if overrides:
             raise UserError(f"{p} is an MCAP log; --map applies to CSV input only")
         log = read_log(p, timing=False)
+        for w in log.warnings:  # a torn or unclosed log: read to its last complete chunk, said here
+            _warn(w)
         rec = log_to_recording(log)
         if rig is None:
             rig = log.rig or load_rig("thesis")
@@ -78,7 +83,17 @@ def load(path: str, config: str | None, mapping: str | None, overrides: list[str
         from furuta_rt.io.csv import read_csv
 
         rec = rescaled(read_csv(p, gaps=True), overrides or [])  # gaps and repeated times: repaired by diagnose
+    from furuta_rt.diagnose.sanity import time_in_seconds
+
+    rec, note = time_in_seconds(rec)
+    if note:
+        _warn(note)
+        rec.meta["input_notes"] = [*rec.meta.get("input_notes", []), note]
     return rec, rig or load_rig("thesis")
+
+
+def _warn(line: str) -> None:
+    Console(stderr=True, soft_wrap=True).print(f"furuta-rt diagnose: warning: {line}", markup=False)
 
 
 def rescaled(rec: Recording, overrides: list[str]) -> Recording:

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose.judgement import verdict, verify
+from furuta_rt.diagnose.judgement import noise, practical, verdict, verify
 from furuta_rt.diagnose.judgement.locate import describe, locate
 from furuta_rt.diagnose.regression import identify
 from furuta_rt.diagnose.regression.fitting import Stats, fit, paired_t
@@ -107,6 +107,7 @@ class Diagnosis:
     verdicts: dict[str, verdict.EquationVerdict] = field(default_factory=dict, repr=False)  # per equation
     summary: str = ""  # one line: the verdicts (furuta_rt.diagnose.judgement.verdict)
     identification: dict | None = None  # the arm's jointly calibrated parameters and identifiable combinations
+    below_practical: list[dict] = field(default_factory=list)  # effects too small to matter (judgement.practical)
 
     @property
     def names(self) -> list[str]:
@@ -125,6 +126,7 @@ class Diagnosis:
             "effects": [e.as_json() for e in self.effects],
             "fit": {k: self.fit[k] for k in FIT_KEYS},
             "not_predictive": self.not_predictive,
+            "below_practical_size": self.below_practical,
             "located": self.located,
             "ambiguities": self.ambiguities,
             "lookalikes": self.lookalikes,
@@ -388,12 +390,14 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     """Diagnose ``rec`` against ``rig`` (see the module docstring)."""
     opts = options or Options()
     t0 = time.perf_counter()
-    notes: list[str] = []
+    notes: list[str] = list(rec.meta.get("input_notes", []))  # what the reader converted (diagnose.sanity)
     rec = balancing_span(rec, notes)
     prep = prepare(rec, rig)
     notes += prep.notes + (conventions.conventions(prep, rig) if opts.check_conventions else [])
     sigma_arm = opts.sigma_arm or arm_sigma(prep)
     ctx = Context.build(prep, rig, sigma_arm, opts.sigma_pend, opts.sigma_fine)
+    if noise.sensor_noise(ctx).note:
+        notes.append(noise.sensor_noise(ctx).note)
     ems: dict[str, EquationModel] = {}
     res: dict[str, EquationResult] = {}
     for eq in (ARM, PEND):
@@ -442,8 +446,10 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     if decay is not None:
         found, ambiguities = _use_decay(decay, found, ambiguities, lookalikes, ctx.known)
     gated = gate.run(ctx, ems, res, found, opts, notes, stick, peak)  # leaves res refitted without what it moved out
-    found = gated.found
-    dropped = {e["name"] for e in gated.not_predictive}
+    found, below = practical.split(ctx, ems, res, gated.found, opts.seed)  # res refitted without the small ones
+    if below:
+        notes.append(practical.describe(below))
+    dropped = {e["name"] for e in [*gated.not_predictive, *below]}
     ambiguities = [a for a in ambiguities if a["effects"][0] not in dropped]
     lookalikes = [a for a in lookalikes if a.get("reported") not in dropped]  # no look-alike of a removed effect
     try:
@@ -470,7 +476,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
         models=ems, prediction=prediction, decay=decay.as_json() if decay is not None else None, decay_result=decay,
         stick=stick, peak=peak, starts=starts, not_predictive=gated.not_predictive, verdicts=verdicts,
         summary=verdict.summary(verdicts),
-        identification=ident,
+        identification=ident, below_practical=below,
     )
 
 

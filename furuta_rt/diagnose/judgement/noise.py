@@ -7,12 +7,14 @@ zero: the encoder's and the ADC's quantisation and the ADC noise, differentiated
 reach it through the accelerations (α θ̈, γ cos θ φ̈, M22 φ̈ …).
 
 Estimated by Monte Carlo on the recording itself: the measured signals are smoothed (the fine kernel), then
-re-measured at the rig's sensor settings (RigConfig.sensors: encoder counts per revolution, θ ADC resolution
-and noise, θ̇ ADC resolution and noise; a random sub-count phase per draw), and each re-measured copy goes
+re-measured at the rig's sensor settings (RigConfig.sensors: encoder counts per revolution, θ and θ̇ ADC
+resolutions; a random sub-count phase per draw) with the noise measured on the recording itself
+(furuta_rt.diagnose.judgement.noise_model: ADC noise and noise entering before the Bessel filter), and each re-measured copy goes
 through the same kernel, the same Bessel reconstruction and FurutaPlant.inverse_dynamics. The difference of
 the residual between a re-measured copy and the smoothed one is one draw of the sensor part of the residual,
 on the recording's own motion (where the arm is slow the encoder's error is a ramp, where it is fast it is
-white — both as in the recording).
+white — both as in the recording). To each draw is added the processing error: the kernel's own bias in the
+nonlinear eq. 4 (``processing``), the same in every draw, so the floor holds everything but the physics.
 """
 
 from __future__ import annotations
@@ -21,25 +23,34 @@ from dataclasses import replace
 
 import numpy as np
 
+from furuta_rt.diagnose.judgement import noise_model
 from furuta_rt.diagnose.regression.library import ARM, Context
 from furuta_rt.diagnose.regression.states import GaussianFilter, Prepared, States
 from furuta_rt.model.sensors import quantise as _quantise
 
 DRAWS = 4  # Monte Carlo draws of the sensor noise
 CLEAN_SIGMA = 0.02  # s, kernel of the smoothed ("noise-free") θ channel that is re-measured
+PROCESSING_SIGMA = 0.005  # s, the nearly unsmoothed states the kernel's bias is measured against
 
 
 def remeasured(prep: Prepared, ctx: Context, rng: np.random.Generator, clean: Prepared) -> Prepared:
     """A copy of ``clean`` measured again by the rig's sensors (RigConfig.sensors)."""
     s = ctx.rig.sensors
     phi = _quantise(clean.phi, prep.phi_lsb, rng.uniform(-0.5, 0.5))
-    theta = _quantise(clean.theta_f + s.theta_noise * rng.standard_normal(prep.n), s.theta_rad_per_count,
-                      rng.uniform(-0.5, 0.5))
+    n_th, n_thd = sensor_noise(ctx).sample(prep.n, prep.dt, prep.bessel, rng, clean.theta_dot_f is not None)
+    theta = _quantise(clean.theta_f + n_th, s.theta_rad_per_count, rng.uniform(-0.5, 0.5))
     theta_dot = None
     if clean.theta_dot_f is not None:
-        theta_dot = _quantise(clean.theta_dot_f + s.theta_dot_noise * rng.standard_normal(prep.n),
-                              s.theta_dot_rad_s_per_count, rng.uniform(-0.5, 0.5))
+        theta_dot = _quantise(clean.theta_dot_f + n_thd, s.theta_dot_rad_s_per_count, rng.uniform(-0.5, 0.5))
     return replace(prep, theta_f=theta, theta_dot_f=theta_dot, phi=phi)
+
+
+def sensor_noise(ctx: Context) -> noise_model.NoiseModel:
+    """The recording's sensor noise (noise_model.estimate), computed once per Context."""
+    key = "sensor noise model"
+    if key not in ctx._columns:
+        ctx._columns[key] = noise_model.estimate(ctx.prep, ctx.rig)  # type: ignore[assignment]
+    return ctx._columns[key]  # type: ignore[return-value]
 
 
 def through_edges(t: np.ndarray, x: np.ndarray, step: float) -> np.ndarray:
@@ -99,5 +110,19 @@ def _draws(ctx: Context, equation: str, n_draws: int, seed: int, clean_sigma: fl
     clean = smoothed(prep, ctx, clean_sigma)
     base = _residual(ctx, equation, clean.states(sigma))
     rng = np.random.default_rng(seed)
-    return np.array([_residual(ctx, equation, remeasured(prep, ctx, rng, clean).states(sigma)) - base
-                     for _ in range(n_draws)])
+    sensor = np.array([_residual(ctx, equation, remeasured(prep, ctx, rng, clean).states(sigma)) - base
+                       for _ in range(n_draws)])
+    return sensor + processing(ctx, equation, clean, base)
+
+
+def processing(ctx: Context, equation: str, clean: Prepared, base: np.ndarray) -> np.ndarray:
+    """The kernel's own bias in the residual (the processing error): eq. 4 is nonlinear in the states, so the
+    residual of the kernel-smoothed states, ``base``, differs from the kernel-smoothed residual of the (nearly)
+    unsmoothed ones by what the kernel does to cos θ·φ̈, sin θ·φ̇² … — largest at command steps and on large
+    motions, and the same in every draw."""
+    f = ctx.states(equation).filt
+    sharp = _residual(ctx, equation, clean.states(PROCESSING_SIGMA))
+    out = base - GaussianFilter.build(f.sigma, clean.dt).apply(sharp, 0)
+    h = f.half + GaussianFilter.build(PROCESSING_SIGMA, clean.dt).half
+    out[:h], out[-h:] = 0.0, 0.0  # the kernels' edges (outside the usable rows anyway)
+    return out
