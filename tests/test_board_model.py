@@ -166,3 +166,18 @@ def test_a_direction_change_never_drives_the_old_duty_the_new_way(image: Path) -
             assert tim3.regs[tim3.CCR1] == 16000 * 4200 // 32767
         mcu.advance_to(mcu.clock.now_ns + 100_000)  # two PWM periods: the preload is in force
         assert tim3.ccr1_active == 16000 * 4200 // 32767
+
+
+def test_a_handler_that_never_returns_is_an_error_naming_it(image: Path) -> None:
+    """An interrupt the image has no handler for lands in Default_Handler, which spins: the model says where the CPU
+    is stuck instead of hanging."""
+    from hil_mock.board_model.mcu import Stm32f401
+    from hil_mock.board_model.peripherals import ModelError
+
+    mcu = Stm32f401(image)
+    mcu.reset()
+    mcu.nvic_enabled[28] = True  # TIM2's line: board.c leaves it disabled and installs no handler
+    mcu.raise_irq(28)
+    spin = mcu.symbols["Default_Handler"] & ~1
+    with pytest.raises(ModelError, match=rf"\(0x{spin:08X}\) still running after"):
+        mcu.deliver()

@@ -9,7 +9,7 @@ instruction) and the return (the frame popped when the handler returns to a sent
 
 Time: ``clock.now_ns`` moves only between interrupts (``advance_to``); the CPU runs each handler to completion in
 zero device time. A read of an unmapped address, an access to a register the model lacks, or a handler that does not
-return within ``HANDLER_TIMEOUT_S`` of wall time is a ``ModelError``.
+return within ``MAX_INSTRUCTIONS`` instructions is a ``ModelError``.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ SENTINEL = 0x1FFF0100  # handlers return here (LR): the model pops the exception
 PERIPH_BASE, PERIPH_SIZE = 0x40000000, 0x30000
 PPB_BASE, PPB_SIZE = 0xE0000000, 0x100000
 IRQ_COUNT = 86
-HANDLER_TIMEOUT_S = 2.0
+MAX_INSTRUCTIONS = 5_000_000  # per run of a handler: ~60 ms of CPU at 84 MHz, 100 worst ticks
 WFI = 0xBF30
 FRAME_REGS = (UC_ARM_REG_R0, UC_ARM_REG_R1, UC_ARM_REG_R2, UC_ARM_REG_R3, UC_ARM_REG_R12, UC_ARM_REG_LR)
 
@@ -324,7 +324,7 @@ class Stm32f401:
             self._preempt = False
             self.asleep = False
             try:
-                self.uc.emu_start(pc | 1, SENTINEL, timeout=0)
+                self.uc.emu_start(pc | 1, SENTINEL, timeout=0, count=MAX_INSTRUCTIONS)
             except UcError as err:
                 pc_now = self._reg(UC_ARM_REG_PC)
                 raise ModelError(f"board model: the CPU stopped at 0x{pc_now:08X} ({self.symbol_at(pc_now)}): {err}") \
@@ -343,7 +343,7 @@ class Stm32f401:
                 pc = self._reg(UC_ARM_REG_PC)
                 continue
             raise ModelError(f"board model: {self.symbol_at(pc)} (0x{pc:08X}) still running after "
-                             f"{HANDLER_TIMEOUT_S:g} s of wall time: the firmware is stuck")
+                             f"{MAX_INSTRUCTIONS} instructions: the firmware is stuck")
 
     def symbol_at(self, addr: int) -> str:
         best, name = -1, "?"
