@@ -22,6 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from firmware_protocol.hostbuild import BuildError
+from furuta_rt.cli import OneLineParser
 from furuta_rt.errors import UserError
 from furuta_rt.io.output import claim_outputs, write_text
 from furuta_rt.tomlfile import read_toml
@@ -32,7 +33,7 @@ SERVING_PREFIX = "hil-mock: serving on "
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = OneLineParser(
         prog="hil-mock",
         description="Simulated Furuta pendulum DAQ speaking firmware_protocol on a pseudo-terminal.",
     )

@@ -131,3 +131,12 @@ def test_hil_mock_checks_the_rig_as_run_does_and_config_names_a_rig(tmp_path: Pa
     assert "is a mock TOML" in old.stderr and "--mock-config" in old.stderr and "serving on" in old.stdout + old.stderr
     new = _hil_mock("--mock-config", str(mock))
     assert new.returncode == 0 and "note" not in new.stderr, new.stderr
+
+
+def test_hil_mock_usage_errors_are_one_line_too() -> None:
+    line = one_line(subprocess.run([sys.executable, "-m", "hil_mock", "--rate", "abc"], capture_output=True, text=True,
+                                   timeout=60))
+    assert line.startswith("hil-mock: error:") and "--rate" in line and "'abc'" in line, line
+    line = one_line(subprocess.run([sys.executable, "-m", "hil_mock", "--pyt"], capture_output=True, text=True,
+                                   timeout=60))
+    assert "did you mean --pty?" in line, line
