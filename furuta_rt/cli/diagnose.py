@@ -64,9 +64,11 @@ def load(path: str, config: str | None, mapping: str | None, overrides: list[str
         if overrides:
             raise UserError(f"{p} is an MCAP log; --map applies to CSV input only")
         log = read_log(p, timing=False)
+        if len(log.ticks.get("t", ())) == 0:  # nothing recoverable: one line, not the warnings of a torn log
+            raise UserError(f"{p} holds no ticks: no complete chunk could be read (0 samples)")
+        rec = log_to_recording(log)
         for w in log.warnings:  # a torn or unclosed log: read to its last complete chunk, said here
             _warn(w)
-        rec = log_to_recording(log)
         if rig is None:
             rig = log.rig or load_rig("thesis")
         if log.mode:
