@@ -88,8 +88,13 @@ def test_main_job_balances_in_every_compensation_mode(tmp_path: Path) -> None:
         for needle in ("duration reached", "period jitter", "latency sample→command", "overruns", "std θ"):
             assert needle in d.stdout, f"{mode}: no {needle!r} in the summary:\n{d.stdout}"
         s = read_summary(tmp_path / mode)
-        assert s["end"] == "duration" and s["ticks"] == ticks and s["mode"] == mode
-        assert s["balanced_s"] > seconds - 0.1 and s["jitter_us"]["p50"] < 1000 and s["update_us"]["p99"] < 1000
+        # --duration is device time: the run ends when the device clock has run `seconds`; a period the host
+        # missed (an overrun, a skipped stale SAMPLE) is one tick fewer, counted as such in the summary.
+        missing = ticks - s["ticks"]
+        assert s["end"] == "duration" and s["mode"] == mode, s
+        assert 0 <= missing <= s["overruns"] + s["skipped_periods"], (mode, s["ticks"], s["overruns"], s["skipped_periods"])
+        ticks = s["ticks"]  # every tick the run reports is in the log, once
+        assert s["balanced_s"] > ticks / RATE - 0.1 and s["jitter_us"]["p50"] < 1000 and s["update_us"]["p99"] < 1000
         path = tmp_path / mode / "run.mcap"
         counts = independent_mcap_counts(path)
         assert counts["error"] is None and counts["complete"], counts
@@ -97,7 +102,8 @@ def test_main_job_balances_in_every_compensation_mode(tmp_path: Path) -> None:
         assert topics[ls.TICK_TOPIC] == topics[ls.TIMING_TOPIC] == topics[ls.JOINT_STATES_TOPIC] == ticks, counts
         log = read_log(path)
         assert not log.recovered and log.n_ticks == ticks and log.mode == mode
-        assert np.array_equal(np.diff(log.ticks["seq"]), np.ones(ticks - 1)) or s["seq_gaps"] > 0
+        seq_steps = np.diff(log.ticks["seq"])
+        assert np.all(seq_steps >= 1) and (np.all(seq_steps == 1) or s["seq_gaps"] > 0 or missing > 0), mode
         bal = steady(log, 1.0)
         print(f"{mode}: balanced {s['balanced_s']:.3f} s of {seconds} s, |θ| max {np.abs(bal['theta']).max():.4f} rad "
               f"from 1 s, jitter p50 {s['jitter_us']['p50']:.0f} us, update p99 {s['update_us']['p99']:.0f} us")
