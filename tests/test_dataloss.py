@@ -184,15 +184,19 @@ def test_shipped_rigs_are_plausible() -> None:
         assert implausible(load_rig(name)) == []
 
 
-def test_diagnose_warns_about_an_implausible_rig_and_diagnoses_it_as_given(tmp_path: Path) -> None:
-    """Finding what a config gets wrong is diagnose's job: a unit mistake is named, not refused."""
+@pytest.mark.parametrize(("key", "value", "mentions"), [
+    ("l", "41.3", ("plant.l", "in cm?", "0.413 m")),
+    ("theta_limit", "28.6", ("safety.theta_limit", "in degrees?", "0.4992 rad")),
+])
+def test_diagnose_refuses_a_config_in_a_wrong_unit(tmp_path: Path, key: str, value: str, mentions: tuple[str, ...]) -> None:
+    """A length in cm or a limit in degrees is a unit mistake, not physics a recording can show: diagnose refuses it as
+    run and design do, one line naming the key and the likely unit, and writes nothing."""
     t = np.arange(1500) / 500.0
     write_csv(Recording(t=t, theta=0.01 * np.sin(3 * t), phi=0.1 * np.sin(t), u=0.1 * np.cos(3 * t)), tmp_path / "r.csv")
-    proc = _cli(tmp_path, "diagnose", "r.csv", "--config", _rig_with(tmp_path, "l", "41.3"), "--no-closed-loop",
-                "--skip-convention-check")
-    assert proc.returncode == 0, proc.stderr
-    warnings = [ln for ln in proc.stderr.splitlines() if ln.strip()]
-    assert len(warnings) == 1 and "warning" in warnings[0] and "plant.l" in warnings[0] and "in cm?" in warnings[0]
+    proc = _cli(tmp_path, "diagnose", "r.csv", "--config", _rig_with(tmp_path, key, value), "--no-closed-loop",
+                "--json", "out.json")
+    _one_line_error(proc, *mentions)
+    assert not (tmp_path / "out.json").exists()
 
 
 # ------------------------------------------------------------------ item 10: scripts/demo resolves paths from the caller's folder

@@ -10,7 +10,7 @@ import numpy as np
 from rich.console import Console
 
 from furuta_rt.cli._common import add_force_argument
-from furuta_rt.config import SHIPPED_RIGS, RigConfig, implausible, load_rig
+from furuta_rt.config import SHIPPED_RIGS, RigConfig, load_rig, require_plausible
 from furuta_rt.errors import UserError
 from furuta_rt.io.output import claim_directory, claim_outputs, directory_when_done, write_text
 from furuta_rt.recording import Recording
@@ -151,9 +151,9 @@ def run(args: argparse.Namespace) -> int:
         if args.json and Path(args.json).name in OUTPUTS and Path(args.json).resolve().parent == Path(args.report).resolve():
             raise UserError(f"--json {args.json} is one of the report's own files; give it another name")
     rec, rig = load(args.recording, args.config, args.mapping, args.map)
-    for problem in implausible(rig):  # a unit mistake, likely; finding what the config gets wrong is the job here
-        Console(stderr=True, soft_wrap=True).print(f"furuta-rt diagnose: warning: {problem}; diagnosed as given",
-                                                   markup=False, highlight=False)
+    # a value no Furuta pendulum has is a unit mistake (cm as m, degrees as rad), not physics to find: refused as
+    # `run` refuses it, one line naming the key and the likely unit
+    require_plausible(rig, args.config or f"the rig {rig.name!r} of {args.recording}")
     if args.theta_filter is not None:
         rig = with_theta_filter(rig, args.theta_filter)
     d = diagnose(rec, rig, Options(closed_loop=not args.no_closed_loop, check_conventions=not args.skip_convention_check))
