@@ -11,9 +11,9 @@ The loop, once per timer period (pacing "realtime"):
     frames out through the link faults and the optional delay line, written non-blocking
 
 Pacing "free" runs streaming ticks back to back (benchmarks); "lockstep" starts each streaming tick as
-soon as the COMMAND answering the previous SAMPLE arrived (deterministic runs on a loaded machine;
-after 1 s without an answer it falls back to real time until a COMMAND is applied). Idle, both pace
-in real time. Timing statistics cover streaming ticks only.
+soon as the COMMAND answering the previous SAMPLE arrived (deterministic runs on a loaded machine, a
+device slower than real time included; a SAMPLE left unanswered for LOCKSTEP_TIMEOUT_S is a late
+command and the device ticks on, still in lockstep). Idle, both pace in real time. Timing statistics cover streaming ticks only.
 """
 
 from __future__ import annotations
@@ -42,7 +42,11 @@ from hil_mock.timing import TickTiming, raise_priority, set_timer_slack, wait_un
 
 TX_BACKLOG_MAX = 4096
 """Bytes the device buffers when the host does not read; beyond it whole frames are dropped (TX_OVERFLOW)."""
-LOCKSTEP_TIMEOUT_S = 1.0
+LOCKSTEP_TIMEOUT_S = 0.1
+"""How long a lockstep device waits for the COMMAND answering its SAMPLE before it ticks on without it (the output held,
+as the firmware does for a late command). A host may leave a SAMPLE unanswered (one that aged in a starved host, or
+the first one, which shares a read with the HELLO_ACK); the wait stays well inside the host's link timeout (0.5 s by
+default), so such a SAMPLE costs one late command, never a link loss."""
 IN_PROCESS_SWITCH_INTERVAL_S = 2e-4
 
 
@@ -371,8 +375,6 @@ class VirtualDevice:
         self._t_start = t_base = pc() - fw.clock_ns * 1e-9
         self._t_end = None
         realtime = True
-        lockstep_ok = True
-        applied_seen = 0
         stop = self._stop
         actions = self._actions
         try:
@@ -396,6 +398,10 @@ class VirtualDevice:
                         if streaming:
                             timing.overruns += 1
                             timing.missed_periods += missed
+                        if self._events:  # a fault due within the skipped periods comes before this tick
+                            self._run_due_events()
+                            if self._fd is None:
+                                break
                 else:
                     now = pc()
                     t_base = now - fw.clock_ns * 1e-9
@@ -411,15 +417,9 @@ class VirtualDevice:
                     realtime = True
                 elif self.pacing == "free":
                     realtime = False
-                else:  # lockstep: wait for the COMMAND answering the SAMPLE just sent
-                    if fw.commands_applied != applied_seen:
-                        applied_seen = fw.commands_applied
-                        lockstep_ok = True
-                    if lockstep_ok:
-                        lockstep_ok = self._await_answer(pc() + LOCKSTEP_TIMEOUT_S)
-                        if not lockstep_ok:  # waited in vain: the next tick is due now, not 1 s ago
-                            t_base = pc() - fw.clock_ns * 1e-9
-                    realtime = not lockstep_ok
+                else:  # lockstep: the next tick when the COMMAND answering the SAMPLE just sent arrived (or waited in vain)
+                    self._await_answer(pc() + LOCKSTEP_TIMEOUT_S)
+                    realtime = False
         finally:
             fw.hangup()
             self._close()

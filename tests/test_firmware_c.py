@@ -294,7 +294,10 @@ def test_furuta_rt_run_balances_with_the_c_device(tmp_path: Path) -> None:
     assert rc == 0, f"exit {rc}\n{d.stderr}\n{d.stdout}"
     assert "firmware 0.2.0" in d.stdout + d.stderr  # the C core's HELLO_ACK (the Python device says 0.1.0)
     s = read_summary(tmp_path)
-    assert s["end"] == "duration" and s["ticks"] == 3 * 500 and s["balanced_s"] > 2.9
+    # --duration is device time: a period the host missed (an overrun, a stale SAMPLE skipped) is a tick fewer
+    missing = 3 * 500 - s["ticks"]
+    assert s["end"] == "duration" and 0 <= missing <= s["overruns"] + s["skipped_periods"], s
+    assert s["balanced_s"] > s["ticks"] / 500 - 0.1, s
 
 
 def test_c_device_without_a_compiler_is_one_line_exit_2(tmp_path: Path) -> None:

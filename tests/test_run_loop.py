@@ -493,12 +493,13 @@ class ScriptedDaq:
         self.ack, self.status_flags, self.status_rate = ack, status_flags, status_rate
         self.slow_first_hello = slow_first_hello
         self.received: list[Any] = []
+        self._decoder = fp.StreamDecoder()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, daemon=True)
         self._thread.start()
 
     def _serve(self) -> None:
-        decoder = fp.StreamDecoder()
+        decoder = self._decoder
         while not self._stop.is_set():
             if not select.select([self.fd], [], [], 0.01)[0]:
                 continue
@@ -529,8 +530,17 @@ class ScriptedDaq:
                     os.write(self.fd, fp.encode(fp.Status(self.status_flags, rate, msg.watchdog_ms, 0, 0, 1, 0)))
 
     def close(self) -> None:
+        """Stop serving, then read what the host wrote last (its STOP) that the serving thread had not read yet."""
         self._stop.set()
         self._thread.join(5)
+        while select.select([self.fd], [], [], 0)[0]:
+            try:
+                data = os.read(self.fd, 4096)
+            except OSError:  # EIO: the host closed its end and nothing is left
+                break
+            if not data:
+                break
+            self.received.extend(self._decoder.feed(data))
         os.close(self.fd)
 
 
