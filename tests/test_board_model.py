@@ -12,6 +12,7 @@ without them, as the other firmware tests.
 
 from __future__ import annotations
 
+import itertools
 import shutil
 import subprocess
 from pathlib import Path
@@ -181,3 +182,67 @@ def test_a_handler_that_never_returns_is_an_error_naming_it(image: Path) -> None
     spin = mcu.symbols["Default_Handler"] & ~1
     with pytest.raises(ModelError, match=rf"\(0x{spin:08X}\) still running after"):
         mcu.deliver()
+
+
+def _streaming(image: Path, theta_code: int = 2048) -> tuple[object, StreamDecoder]:
+    """The image on the model, a HELLO answered: the MCU about to make SAMPLE 0 at its next tick."""
+    from hil_mock.board_model.mcu import Stm32f401
+
+    mcu = Stm32f401(image)
+    mcu.adc_code = lambda ch: theta_code
+    mcu.reset()
+    mcu.receive(b"\x00" + encode(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 1)))
+    return mcu, StreamDecoder()
+
+
+def _new_samples(mcu, dec: StreamDecoder) -> list[Sample]:  # type: ignore[no-untyped-def]
+    out = [m for m in dec.feed(bytes(mcu.tx)) if isinstance(m, Sample)]
+    mcu.tx.clear()
+    return out
+
+
+def test_a_rate_change_in_a_long_tick_never_stalls_the_tick(image: Path) -> None:
+    """CONFIG 500 → 2000 Hz decoded in a tick that has already run 0.6 ms (longer than the new 0.5 ms period): TIM5's
+    count is past the new ARR when it is written. Without ARR preload the counter runs on to its 32-bit wrap (51 s
+    without a tick); with it the next tick comes at once and the ones after every 0.5 ms, each SAMPLE's t_us on the
+    device's clock."""
+    from firmware_protocol import Config
+
+    mcu, dec = _streaming(image)
+    mcu.advance_to(mcu.next_tick_ns())  # SAMPLE 0
+    mcu.receive(encode(Config(2000, 20)))
+    mcu.stall("hal_tick_rate", 600_000, times=1)
+    t_config = mcu.next_tick_ns()
+    mcu.advance_to(t_config)  # decodes the CONFIG, sets the rate, SAMPLE 1
+    assert mcu.next_tick_ns() - mcu.clock.now_ns < 1_000, "the tick stalled after the rate change"
+    ticks = []
+    for _ in range(6):
+        ticks.append(mcu.next_tick_ns())
+        mcu.advance_to(ticks[-1])
+    assert [b - a for a, b in itertools.pairwise(ticks)] == [500_000] * 5
+    samples = _new_samples(mcu, dec)
+    assert [s.seq for s in samples] == list(range(8))
+    assert [b.t_us - a.t_us for a, b in itertools.pairwise(samples[2:])] == [500] * 5
+
+
+def test_a_tick_that_overruns_is_counted_once(image: Path) -> None:
+    """One tick runs 3 ms at 500 Hz: the update of the period it overran sets UIF and the NVIC pending bit. The
+    handler reports that period skipped (TICK_OVERRUN); it must not also run again at once for it, or the device's
+    clock counts the period twice. Every SAMPLE's t_us is the device time of its tick (one lost period, one
+    TICK_OVERRUN)."""
+    over = int(StatusFlags.TICK_OVERRUN)
+    mcu, dec = _streaming(image)
+    t0 = mcu.next_tick_ns()
+    mcu.advance_to(t0)
+    made = [(t0, s) for s in _new_samples(mcu, dec)]  # (device time of each SAMPLE's tick, the SAMPLE)
+    mcu.stall("fw_tick", 3_000_000, times=1)
+    while mcu.clock.now_ns < t0 + 20_000_000:
+        t = mcu.next_tick_ns()
+        mcu.advance_to(t)
+        made += [(t, s) for s in _new_samples(mcu, dec)]
+    times = [t for t, _ in made]
+    assert len(set(times)) == len(times), "two SAMPLEs made by one timer update (the pending bit re-ran the tick)"
+    t_first, s_first = made[0]
+    for t, s in made:
+        assert s.t_us - s_first.t_us == (t - t_first) // 1000, (s.seq, s.t_us, t)
+    assert sum(bool(s.status & over) for _, s in made) == 1

@@ -104,6 +104,7 @@ class Stm32f401:
         self.resets = 0
         self.watchdog_resets = 0
         self.on_reset: Callable[[], None] | None = None
+        self._stalls: dict[int, list[int]] = {}  # code address → [device ns it takes, calls left (-1: all)]
         self._build()
 
     # ------------------------------------------------------------ construction
@@ -157,10 +158,37 @@ class Stm32f401:
         for addr in range(main, min(end, main + 0x1000), 2):  # the idle loop's wfi: the thread is asleep there
             if struct.unpack_from("<H", flash, addr - FLASH_BASE)[0] == WFI:
                 uc.hook_add(UC_HOOK_CODE, self._on_wfi, begin=addr, end=addr)
+        for addr in self._stalls:
+            uc.hook_add(UC_HOOK_CODE, self._on_stall, begin=addr, end=addr)
 
     def _on_wfi(self, uc: Uc, address: int, size: int, user: object) -> None:
         self.asleep = True
         uc.emu_stop()
+
+    def stall(self, symbol: str, ns: int, times: int = -1) -> None:
+        """Each time the CPU enters function ``symbol``, ``ns`` of device time pass there — that code (or an interrupt
+        it waited for) taking that long — with TIM5's update events falling due inside, UIF and the NVIC pending bit
+        set as on the silicon (the model's CPU is otherwise infinitely fast). ``times``: only the next ``times`` calls.
+        Only the tick's code may stall: TIM5 must not pre-empt what stalls."""
+        if symbol not in self.symbols:
+            raise ModelError(f"{self.image}: no symbol {symbol!r} to stall")
+        addr = self.symbols[symbol] & ~1
+        if addr not in self._stalls:
+            self.uc.hook_add(UC_HOOK_CODE, self._on_stall, begin=addr, end=addr)
+        self._stalls[addr] = [ns, times]
+
+    def _on_stall(self, uc: Uc, address: int, size: int, user: object) -> None:
+        entry = self._stalls[address]
+        if entry[1] == 0:
+            return
+        entry[1] -= entry[1] > 0
+        end = self.clock.now_ns + entry[0]
+        while (t := self.tim5.next_update_ns()) is not None and t <= end:
+            self.clock.now_ns = t
+            self.tim3.sync()
+            self.tim5.update_event(t)
+        self.clock.now_ns = end
+        self.tim3.sync()
 
     # ------------------------------------------------------------ memory-mapped I/O
     def _fail(self, err: Exception) -> int:
@@ -389,7 +417,7 @@ class Stm32f401:
             t_next = min(t for t in (t_upd, t_wdg, t_ns + 1) if t is not None)
             if t_next > t_ns:
                 break
-            self.clock.now_ns = t_next
+            self.clock.now_ns = max(self.clock.now_ns, t_next)  # a watchdog that expired inside a stalled handler
             self.tim3.sync()
             if t_wdg is not None and t_next == t_wdg:
                 self.watchdog_resets += 1

@@ -167,12 +167,14 @@ class Timer(Peripheral):
             self.ccr1_active = self.regs[self.CCR1]
             self.regs[self.SR] |= 1
 
-    def update_event(self, at_ns: int) -> None:
-        """Counter reached ARR (or UG): back to 0, preloads transfer, UIF set."""
+    def update_event(self, at_ns: int, software: bool = False) -> None:
+        """Counter reached ARR (or UG): back to 0, preloads transfer, UIF set (not by UG with URS set)."""
         self.t0_ns = at_ns
         self.regs[self.CNT] = 0
         self.arr_active = self.regs[self.ARR]
         self.ccr1_active = self.regs[self.CCR1]
+        if software and self.regs[self.CR1] & (1 << 2):  # URS: only an overflow sets UIF / requests the interrupt
+            return
         self.regs[self.SR] |= 1
         if self.irq is not None and self.regs[self.DIER] & 1:
             self.raise_irq(self.irq)
@@ -187,8 +189,8 @@ class Timer(Peripheral):
             self.regs[off] &= value
             return
         if off == self.EGR:
-            if value & 1:  # UG: reinitialise the counter and transfer the preloads (UIF too, URS = 0)
-                self.update_event(self.clock.now_ns)
+            if value & 1:  # UG: reinitialise the counter and transfer the preloads (UIF too unless URS)
+                self.update_event(self.clock.now_ns, software=True)
             return
         if off == self.CNT:
             self.t0_ns = self.clock.now_ns - round((value & self.mask) * self.tick_ns())

@@ -117,8 +117,17 @@ uint8_t hal_uart_write(fw_hal_t *h, const uint8_t *data, size_t len)
 
 void hal_tick_rate(fw_hal_t *h, uint16_t rate_hz)
 {
+    uint32_t arr = BOARD_TIMER_HZ / rate_hz - 1u;
+    uint32_t cnt;
     (void)h;
-    TIM_ARR(TIM5_BASE) = BOARD_TIMER_HZ / rate_hz - 1u;
+    /* ARR is preloaded (ARPE): a value below the running count can never be in force, which would run the counter
+     * to its 32-bit wrap (51 s without a tick). The core counts the new period from this tick, so it takes effect
+     * now: UG transfers it (URS: no update interrupt), and the count goes back to where it was, or to the last count
+     * of the new period when the tick has already run longer than that (the next tick at once) */
+    TIM_ARR(TIM5_BASE) = arr;
+    cnt = TIM_CNT(TIM5_BASE);
+    TIM_EGR(TIM5_BASE) = TIM_EGR_UG;
+    TIM_CNT(TIM5_BASE) = cnt < arr ? cnt : arr;
 }
 
 void hal_session_started(fw_hal_t *h, uint8_t new_session)
@@ -142,8 +151,10 @@ void TIM5_IRQHandler(void)
     }
     fw_tick(&fw);
     IWDG_KR = 0xAAAAu;
-    if (TIM_SR(TIM5_BASE) & TIM_SR_UIF) { /* a whole period went by during this tick */
+    if (TIM_SR(TIM5_BASE) & TIM_SR_UIF) { /* a whole period went by during this tick: skipped, counted once */
         TIM_SR(TIM5_BASE) = ~TIM_SR_UIF;
+        (void)TIM_SR(TIM5_BASE); /* the write reaches the timer (the line drops) before the pending bit is cleared */
+        NVIC_ICPR(IRQ_TIM5 / 32u) = 1u << (IRQ_TIM5 % 32u); /* else the handler runs again at once for that period */
         fw_skip(&fw, 1u);
     }
     cycles = DWT_CYCCNT - t0;
@@ -242,6 +253,7 @@ static void peripherals(void)
 
     /* the tick: TIM5 update at the default rate (fw_init calls hal_tick_rate) */
     TIM_PSC(TIM5_BASE) = 0u;
+    TIM_CR1(TIM5_BASE) = TIM_CR1_ARPE | TIM_CR1_URS;
     TIM_DIER(TIM5_BASE) = TIM_DIER_UIE;
     NVIC_IPR8(IRQ_USART2) = 0x40u; /* bytes must not wait for a tick */
     NVIC_IPR8(IRQ_TIM5) = 0x80u;
@@ -273,7 +285,7 @@ int main(void)
     hardware_watchdog();
     TIM_EGR(TIM5_BASE) = TIM_EGR_UG;
     TIM_SR(TIM5_BASE) = 0u;
-    TIM_CR1(TIM5_BASE) = TIM_CR1_CEN;
+    TIM_CR1(TIM5_BASE) |= TIM_CR1_CEN;
     for (;;) {
         __asm__ volatile("wfi");
     }

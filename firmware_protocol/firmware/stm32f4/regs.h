@@ -63,6 +63,7 @@
 #define TIM_ARR(b) REG32((b) + 0x2Cu)
 #define TIM_CCR1(b) REG32((b) + 0x34u)
 #define TIM_CR1_CEN (1u << 0)
+#define TIM_CR1_URS (1u << 2)
 #define TIM_CR1_ARPE (1u << 7)
 #define TIM_DIER_UIE (1u << 0)
 #define TIM_SR_UIF (1u << 0)
@@ -105,6 +106,7 @@
 
 /* core: NVIC, DWT cycle counter, unique id */
 #define NVIC_ISER(n) REG32(0xE000E100u + 4u * (n))
+#define NVIC_ICPR(n) REG32(0xE000E280u + 4u * (n))
 #define NVIC_IPR8(irq) (*(volatile uint8_t *)(uintptr_t)(0xE000E400u + (irq)))
 #define SYST_CSR REG32(0xE000E010u) /* SysTick: ENABLE bit 0, TICKINT bit 1, CLKSOURCE (CPU) bit 2 */
 #define SYST_RVR REG32(0xE000E014u)
