@@ -214,3 +214,58 @@ def test_two_runs_started_together_on_one_log_the_loser_claims_none_of_its_ticks
     assert read_summary(tmp_path / winner)["log_ticks"] == read_log(shared).n_ticks > 0
     loser_err = next(daemon.stderr for d, _, daemon in runs if d.name == loser)
     assert traceback_free(loser_err) and "shared.mcap" in loser_err
+
+
+def _padded_log(tmp_path: Path, records: int) -> tuple[Path, int]:
+    """A real simulated log with ``records`` empty records of MCAP's user range (opcode 0x80, which readers skip)
+    after its header: the same ticks, but reading it takes long enough for another process to cut it meanwhile.
+    Returns (path, the byte offset where the padding starts)."""
+    from furuta_rt.config import load_rig
+    from furuta_rt.replay.simulate import simulate_log
+
+    plain = simulate_log(tmp_path / "plain.mcap", load_rig("thesis"), 0.5, substep_hz=1000, flush_every=0.1)
+    data = plain.read_bytes()
+    header_end = 8 + 9 + int.from_bytes(data[9:17], "little")  # the magic, then the Header record
+    padded = tmp_path / "run.mcap"
+    padded.write_bytes(data[:header_end] + (b"\x80" + bytes(8)) * records + data[header_end:])
+    return padded, header_end
+
+
+def _has_open(pid: int, path: Path) -> bool:
+    try:
+        fds = os.listdir(f"/proc/{pid}/fd")
+    except OSError:
+        return False
+    for fd in fds:
+        try:
+            if os.readlink(f"/proc/{pid}/fd/{fd}") == str(path):
+                return True
+        except OSError:
+            continue
+    return False
+
+
+def test_a_log_cut_short_while_replay_reads_it_is_one_line_exit_2_not_a_bus_error(tmp_path: Path) -> None:
+    """Another process truncates the log while `replay` reads it (caught with the file open, the reader stopped by
+    SIGSTOP so the cut lands mid-read): one line naming the file, exit 2, no --csv written. Read through a memory
+    map, touching the pages past the new end was SIGBUS: exit 135, no message."""
+    log, pad_start = _padded_log(tmp_path, 600_000)
+    assert read_log(log).n_ticks == read_log(tmp_path / "plain.mcap").n_ticks > 0  # the padding is harmless
+    out = tmp_path / "out.csv"
+    proc = subprocess.Popen([*FURUTA_RT, "replay", str(log), "--csv", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=ROOT, stdin=subprocess.DEVNULL)
+    try:
+        end = time.monotonic() + TIMEOUT_S
+        while not _has_open(proc.pid, log) and proc.poll() is None and time.monotonic() < end:
+            time.sleep(0.001)
+        time.sleep(0.05)  # into the records (the read takes seconds): past opening it, whatever reads it
+        os.kill(proc.pid, signal.SIGSTOP)
+        assert _has_open(proc.pid, log), "replay was not caught reading the log (it read 5 MB of records first)"
+        subprocess.run(["truncate", "-s", str(pad_start + 9 * 1000), str(log)], check=True, timeout=TIMEOUT_S)
+        os.kill(proc.pid, signal.SIGCONT)
+        stdout, stderr = proc.communicate(timeout=TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    _one_line(subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr), "shrank", str(log))
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["plain.mcap", "run.mcap"]

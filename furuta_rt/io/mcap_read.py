@@ -1,9 +1,11 @@
 """Reading furuta-rt MCAP logs (layout: furuta_rt.io.log_schema) into numpy columns.
 
 One code path reads complete logs and logs left by a killed run: the file's records are read front to back
-(memory-mapped; each record's opcode and length here, mcap's record classes for channels, schemas, metadata
-and attachments); a chunk is used only if it is complete and its CRC checks (mcap's decompression), and
-reading stops quietly at a torn end — what came before is kept, with a warning saying how much.
+(pread through a read-ahead window, not a memory map: a mapped file that another program truncates kills its
+reader with SIGBUS, where a short read here is one line; each record's opcode and length here, mcap's record
+classes for channels, schemas, metadata and attachments); a chunk is used only if it is complete and its CRC
+checks (mcap's decompression), and reading stops quietly at a torn end — what came before is kept, with a
+warning saying how much.
 
 A chunk's MessageIndex records (which follow it) name its channels: a chunk with none that is wanted is not
 even decompressed (in a log with /furuta/tick_batch: the JSON chunks). They also give its messages' offsets:
@@ -18,7 +20,6 @@ from __future__ import annotations
 
 import gc
 import json
-import mmap
 import os
 import stat
 import struct
@@ -229,7 +230,7 @@ class _Scan:
     batched: bool = False  # ticks and timing come from /furuta/tick_batch
     batch_problem: str | None = None  # a /furuta/tick_batch this version cannot read
     pending_chunk: _ChunkAt | None = None  # the last chunk, used once its MessageIndex records are read
-    source: Any = None  # the file's bytes (memory-mapped) while it is read
+    source: Any = None  # the file's bytes (a _FileBytes) while it is read
     pending_index: list[bytes] = field(default_factory=list)
     chunks: int = 0
     skipped_chunks: int = 0  # complete chunks holding nothing wanted, not decompressed
@@ -269,8 +270,9 @@ class _Scan:
                 self.chunks += 1
                 self.skipped_chunks += 1
                 return
+        chunk = found.read(self.source)  # _Shrunk propagates: not a damaged chunk
         try:
-            stream, length = get_chunk_data_stream(found.read(self.source), validate_crc=True)
+            stream, length = get_chunk_data_stream(chunk, validate_crc=True)
             data = stream.read(length)
             if len(data) != found.uncompressed_size:
                 raise ValueError("size mismatch")
@@ -416,14 +418,19 @@ _RECORD_TYPES = {Opcode.CHANNEL: Channel, Opcode.SCHEMA: Schema, Opcode.METADATA
                  Opcode.ATTACHMENT: Attachment, Opcode.DATA_END: DataEnd, Opcode.FOOTER: Footer}
 
 
-def _parse_record(op: int, source: Any, start: int, end: int) -> Any:
+def _parse_record(op: int, source: _FileBytes, start: int, end: int) -> Any:
     """The record with opcode ``op`` whose body is source[start:end]: a _ChunkAt for a chunk (its records are not
-    copied yet), mcap's record for the kinds a log's reader uses, None for the others."""
+    read yet), mcap's record for the kinds a log's reader uses, None for the others (never read)."""
     if op == Opcode.CHUNK:
-        t0, t1, size, crc, name_length = _CHUNK_HEAD.unpack_from(source, start)
         at = start + _CHUNK_HEAD.size
-        compression = bytes(source[at : at + name_length]).decode()
-        (length,) = _U64.unpack_from(source, at + name_length)
+        if at > end:
+            raise ValueError("a chunk record too short for its header")
+        t0, t1, size, crc, name_length = _CHUNK_HEAD.unpack(source[start:at])
+        if at + name_length + _U64.size > end:
+            raise ValueError("a chunk's compression name runs past the chunk record")
+        head = source[at : at + name_length + _U64.size]
+        compression = head[:name_length].decode()
+        (length,) = _U64.unpack_from(head, name_length)
         data = at + name_length + _U64.size
         if data + length > end:
             raise ValueError("a chunk's records run past the chunk record")
@@ -432,13 +439,50 @@ def _parse_record(op: int, source: Any, start: int, end: int) -> Any:
     return None if kind is None else kind.read(ReadDataStream(BytesIO(source[start:end])))
 
 
+class _Shrunk(Exception):
+    """The file ended before the size it had when reading began: another program truncated it."""
+
+
+class _FileBytes:
+    """A file's first ``size`` bytes, sliced like bytes (``source[a:b]``), read with pread through a read-ahead
+    window: a record header costs no system call of its own, a chunk nobody wants is never read. A read that
+    comes up short raises _Shrunk; that is why this is not a memory map, where touching a page past a truncated
+    end is SIGBUS (the reader killed, no message)."""
+
+    WINDOW = 1 << 16  # within the C library's small-allocation range: a larger read costs page faults
+
+    def __init__(self, fd: int, size: int) -> None:
+        self.fd, self.size = fd, size
+        self._at, self._window = 0, b""
+
+    def _pread(self, start: int, n: int) -> bytes:
+        parts, want = [], n
+        while want > 0:
+            part = os.pread(self.fd, want, start + n - want)
+            if not part:
+                raise _Shrunk
+            parts.append(part)
+            want -= len(part)
+        return parts[0] if len(parts) == 1 else b"".join(parts)
+
+    def __getitem__(self, where: slice) -> bytes:
+        start, stop = where.start, where.stop
+        at, window = self._at, self._window
+        if at <= start and stop <= at + len(window):
+            return window[start - at : stop - at]
+        if stop - start >= self.WINDOW:
+            return self._pread(start, stop - start)
+        self._at, self._window = start, self._pread(start, min(self.WINDOW, self.size - start))
+        return self._window[: stop - start]
+
+
 def _scan(path: Path, want: dict[str, _Columns | _TickBatches], progress: Callable[[int, int], None] | None = None) -> _Scan:
-    """Read the file's records front to back (memory-mapped: a chunk nobody wants is never copied), up to a torn
-    end or the footer."""
+    """Read the file's records front to back (a chunk nobody wants is never read), up to a torn end or the
+    footer. A file that shrinks meanwhile is a UserError: what was read may mix two versions of it."""
     regular_input(path, "log")  # a FIFO would block, /dev/zero never ends, a link loop is no file
     try:
-        size = path.stat().st_size
         fh = path.open("rb")
+        size = os.fstat(fh.fileno()).st_size
     except FileNotFoundError:
         raise UserError(f"log {path} does not exist") from None
     except OSError as err:
@@ -452,25 +496,39 @@ def _scan(path: Path, want: dict[str, _Columns | _TickBatches], progress: Callab
         was_enabled = gc.isenabled()
         gc.disable()  # decoding makes many small dicts; the cyclic collector only slows it down
         try:
-            with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as source:
-                scan.source = source
-                _scan_records(scan, source, path, progress)
-                scan.finish_chunk()
-                scan.source = None
+            scan.source = source = _FileBytes(fh.fileno(), size)
+            _scan_records(scan, source, path, progress)
+            scan.finish_chunk()
+            scan.source = None
+            if os.fstat(fh.fileno()).st_size < size:
+                raise _Shrunk
+        except _Shrunk:
+            raise UserError(_shrunk_message(path, size, fh.fileno())) from None
+        except OSError as err:
+            raise UserError(f"cannot read {path}: {(err.strerror or str(err)).lower()}") from None
         finally:
             if was_enabled:
                 gc.enable()
     return scan
 
 
-def _scan_records(scan: _Scan, source: Any, path: Path, progress: Callable[[int, int], None] | None) -> None:
+def _shrunk_message(path: Path, size: int, fd: int) -> str:
+    try:
+        now = f"{os.fstat(fd).st_size} bytes"
+    except OSError:
+        now = "less"
+    return (f"log {path} shrank while it was read (from {size} bytes to {now}): another program truncated it or is "
+            "rewriting it; nothing read from it was used. Read it again once it is complete")
+
+
+def _scan_records(scan: _Scan, source: _FileBytes, path: Path, progress: Callable[[int, int], None] | None) -> None:
     size = scan.size
     pos = scan.good_end = len(MCAP_MAGIC)
     while pos < size:
         if size - pos < _RECORD.size:
             scan.problem = "the file ends inside a record's opcode and length"
             return
-        op, length = _RECORD.unpack_from(source, pos)
+        op, length = _RECORD.unpack(source[pos : pos + _RECORD.size])
         if not _valid_opcode(op):  # zeros of a sparse file, or garbage: no MCAP record starts like this
             scan.problem = f"no MCAP record at byte {pos} (opcode {op:#04x}); the rest of the file is not MCAP"
             return
