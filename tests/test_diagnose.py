@@ -245,7 +245,8 @@ def test_too_short_recording_is_refused(rig) -> None:
 def test_free_decay_tells_viscous_and_coulomb_pivot_friction_apart() -> None:
     """A simulated free swing with both kinds of pivot friction: the energy lost per cycle needs both, and the
     fitted values come back (eq. 1 and viscous laws of furuta_rt.model.friction)."""
-    from furuta_rt.diagnose.stages.decay import free_decay, is_free_decay
+    from furuta_rt.diagnose.stages.decay import free_decay
+    from furuta_rt.diagnose.stages.swing import is_free_swing
     from furuta_rt.model.effects import effects_from_assignments
     from furuta_rt.model.rig import RigModel
     from furuta_rt.sim.simulator import Simulator
@@ -262,7 +263,7 @@ def test_free_decay_tells_viscous_and_coulomb_pivot_friction_apart() -> None:
         sim.advance()
     rec = Recording(t=cols[:, 0], theta=cols[:, 1], phi=cols[:, 2], u=np.zeros(n))
     prep = prepare(rec, rig)
-    assert is_free_decay(prep)
+    assert is_free_swing(prep, rig)
     r = free_decay(prep, rig)
     assert r is not None and r.best == "both"
     assert r.fits["both"].bp == pytest.approx(2e-4, rel=0.15)

@@ -37,8 +37,8 @@ from furuta_rt.diagnose.regression.fitting import Stats, fit, paired_t
 from furuta_rt.diagnose.regression.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, STILL_TICKS, Context
 from furuta_rt.diagnose.regression.selection import JOINT, EquationModel, Evaluation
 from furuta_rt.diagnose.regression.states import GaussianFilter, Prepared, prepare
-from furuta_rt.diagnose.stages import conventions, gate, latency, onset, peaks, stickslip
-from furuta_rt.diagnose.stages.decay import DecayFit, DecayResult, free_decay, is_free_decay
+from furuta_rt.diagnose.stages import conventions, gate, latency, onset, peaks, stickslip, swing
+from furuta_rt.diagnose.stages.decay import DecayFit, DecayResult, free_decay
 from furuta_rt.diagnose.stages.findings import (
     LUGRE_CONTAINS,
     EquationResult,
@@ -442,9 +442,16 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     if stick is not None:
         ambiguities += stick.ambiguities
         lookalikes += stick.lookalikes
-    decay = free_decay(prep, rig) if is_free_decay(prep) else None
+    free_swing = swing.is_free_swing(prep, rig)
+    decay = free_decay(prep, rig) if free_swing else None
+    decay_json = None
     if decay is not None:
         found, ambiguities = _use_decay(decay, found, ambiguities, lookalikes, ctx.known)
+        read = swing.read(prep, rig, decay.peaks_t, decay.rest_offset)
+        notes += read.notes()
+        decay_json = {**decay.as_json(), **read.as_json()}
+    elif free_swing:
+        notes.append(swing.TOO_FEW)
     gated = gate.run(ctx, ems, res, found, opts, notes, stick, peak)  # leaves res refitted without what it moved out
     found, below = practical.split(ctx, ems, res, gated.found, opts.seed)  # res refitted without the small ones
     if below:
@@ -473,7 +480,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     return Diagnosis(
         effects=found, fit=fit_summary, located=located, ambiguities=ambiguities, lookalikes=lookalikes,
         equations=res, closed_loop=closed, notes=notes, seconds=time.perf_counter() - t0, rig=rig.name, context=ctx,
-        models=ems, prediction=prediction, decay=decay.as_json() if decay is not None else None, decay_result=decay,
+        models=ems, prediction=prediction, decay=decay_json, decay_result=decay,
         stick=stick, peak=peak, starts=starts, not_predictive=gated.not_predictive, verdicts=verdicts,
         summary=verdict.summary(verdicts),
         identification=ident, below_practical=below,

@@ -492,6 +492,9 @@ def possible_causes(ctx: Context, remaining: dict[str, Remaining], detect: dict 
     # a spring's J_m/k is positive; the other sign is a lag of the actuator (or the sensor noise fed back through the
     # loop: −1 to −7·10⁻⁴ s² on the simulator's sine-excited null cases), no compliance
     out = [c for c in out if c["key"] != "compliance" or c["coefficient"] > 0]
+    # a parameter's true value is p·(1 − a) and a θ scale 1/(1 − a): a ≥ 1 is a negative mass, inertia, length or
+    # scale, no possible cause (its column only stands in for a sign, an offset or physics outside the list)
+    out = [c for c in out if c["key"] in FIXED_COLUMN_CAUSES or c["coefficient"] < 1.0]
     out.sort(key=lambda c: -c["removes_total"])
     for c in out:  # causes that fit (almost) as well as the first are look-alikes the data cannot tell apart
         c["indistinguishable_from_first"] = bool(c["removes_total"] >= out[0]["removes_total"] - LOOKALIKE_MARGIN)

@@ -26,6 +26,7 @@ from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.rig import PENDULUM_COULOMB_EPSILON
 
 MIN_CYCLES = 5
+AMPLITUDE_RESOLUTIONS = 10.0  # a cycle counts when its amplitude is this many θ resolutions (LSB or noise)
 
 
 @dataclass(frozen=True)
@@ -63,16 +64,6 @@ class DecayResult:
                 for k, f in self.fits.items()
             },
         }
-
-
-def is_free_decay(prep: Prepared) -> bool:
-    """No command, the arm practically still, the pendulum swinging through a sizeable range."""
-    v = prep.valid
-    return (
-        float(np.max(np.abs(prep.u[v]))) == 0.0
-        and float(np.ptp(prep.phi[v])) < 0.05
-        and float(np.ptp(prep.theta_f[v])) > 0.5
-    )
 
 
 def _loo(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
@@ -118,7 +109,10 @@ def free_decay(prep: Prepared, rig: RigConfig, sigma: float = 0.005, stop_time: 
         amp.append(float(np.max(np.abs(x[seg]))))
         t0.append(float(t[a]))
     R = np.asarray(rows)
-    keep = (R[:, 0] > 0) & (R[:, 2] > 0)  # cycles that moved and lost energy (not a stuck tail)
+    # cycles that moved and lost energy (not a stuck tail), with an amplitude well above the θ sensor's resolution:
+    # below it the energy lost is the reading's noise, which the relative weighting below would let dominate
+    resolution = max(rig.sensors.theta_rad_per_count, rig.sensors.theta_noise)
+    keep = (R[:, 0] > 0) & (R[:, 2] > 0) & (np.asarray(amp) >= AMPLITUDE_RESOLUTIONS * resolution)
     R = R[keep]
     amp = list(np.asarray(amp)[keep])
     t0 = list(np.asarray(t0)[keep])

@@ -1,0 +1,160 @@
+"""The first physics of simple real-rig experiments: a free swing's loss (its envelope's shape, the energy fit) and
+period, read from recordings simulated with a seed and from the macstepien rig's real free decay; possible causes
+with a non-physical sign are never offered."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from furuta_rt.config import RigConfig, load_rig
+from furuta_rt.diagnose import Options, diagnose
+from furuta_rt.diagnose.judgement import verdict
+from furuta_rt.diagnose.regression.library import PEND, Context
+from furuta_rt.diagnose.regression.states import prepare
+from furuta_rt.diagnose.stages import swing
+from furuta_rt.diagnose.stages.decay import free_decay
+from furuta_rt.io.mapping import load_mapping, read_mapped_csv
+from furuta_rt.model.effects import effects_from_assignments
+from furuta_rt.model.rig import RigModel
+from furuta_rt.recording import Recording
+from furuta_rt.sim.simulator import Simulator
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "macstepien-furuta"
+HELD_ARM = "arm_coulomb.Fc=0.5"  # a dry friction far above the pendulum's reaction: the arm stays put
+FAST = Options(closed_loop=False, max_windows=15)
+
+
+def swing_recording(rig: RigConfig, effects: list[str], rate: float, amplitude: float = 0.4, seconds: float = 20.0,
+                    seed: int = 0) -> Recording:
+    """The pendulum released ``amplitude`` rad from hanging, zero command, sampled at ``rate`` Hz through the rig's
+    own sensors (encoders with quantisation on the QUBE-Servo 2)."""
+    sim = Simulator(RigModel.from_config(rig, effects_from_assignments(effects)), rate, 5000.0, seed=seed,
+                    x0=(math.pi - amplitude, 0.0, 0.0, 0.0))
+    n = round(seconds * rate)
+    cols = np.empty((n, 4))
+    for k in range(n):
+        m = sim.measure()
+        cols[k] = (sim.t, m.theta, m.theta_dot, m.phi)
+        sim.advance()
+    return Recording(t=cols[:, 0], theta=cols[:, 1], theta_dot=cols[:, 2], phi=cols[:, 3], u=np.zeros(n))
+
+
+def _read(rec: Recording, rig: RigConfig) -> tuple[swing.Swing, object]:
+    prep = prepare(rec, rig)
+    assert swing.is_free_swing(prep, rig)
+    decay = free_decay(prep, rig)
+    assert decay is not None
+    return swing.read(prep, rig, decay.peaks_t, decay.rest_offset), decay
+
+
+@pytest.fixture(scope="module")
+def qube() -> RigConfig:
+    return load_rig("qube_servo2")
+
+
+@pytest.mark.parametrize(("effects", "shape"), [
+    (["pendulum_viscous.bp=5e-5"], "exponential"),
+    (["pendulum_coulomb.Fc=2e-4"], "linear"),
+    (["pendulum_viscous.bp=5e-5", "pendulum_coulomb.Fc=1e-4"], "both"),
+])
+def test_the_envelope_names_the_loss_law(qube: RigConfig, effects: list[str], shape: str) -> None:
+    """Viscous friction leaves an exponential envelope, Coulomb friction a linear one, both a combination — read from
+    the turning points alone, at 100 Hz through 2048-count encoders."""
+    read, decay = _read(swing_recording(qube, [*effects, HELD_ARM], 100.0), qube)
+    assert read.envelope is not None and read.envelope.shape == shape, read.envelope
+    others = [v for k, v in read.envelope.loo.items() if k not in (shape, "both")]
+    assert all(read.envelope.loo[shape] < 0.5 * v for v in others), read.envelope.loo
+    # the energy fit (stages/decay.py) names the same law and sizes it
+    assert decay.best == {"exponential": "viscous", "linear": "coulomb"}.get(shape, "both")
+    truth = dict(e.split("=") for e in effects)
+    best = decay.fits[decay.best]
+    if "pendulum_viscous.bp" in truth:
+        assert best.bp == pytest.approx(float(truth["pendulum_viscous.bp"]), rel=0.15)
+    if "pendulum_coulomb.Fc" in truth:
+        assert best.Fc == pytest.approx(float(truth["pendulum_coulomb.Fc"]), rel=0.15)
+    assert read.period is not None and not read.period.mismatch, read.period  # the config is the simulated rig
+
+
+def test_the_period_pins_gravity_torque_over_inertia(qube: RigConfig) -> None:
+    """A pendulum 30 % heavier in inertia about its centre than the config says swings slower: the period gives the
+    true (ε/α) ratio within its standard error, flagged as a mismatch, and the text says what it cannot tell."""
+    true = qube.model_copy(update={"plant": qube.plant.model_copy(update={"J2": 1.3 * qube.plant.J2})})
+    read, _ = _read(swing_recording(true, ["pendulum_viscous.bp=3e-5", HELD_ARM], 100.0, seed=4), qube)
+    ratio = qube.lumped().alpha / true.lumped().alpha  # ε unchanged
+    p = read.period
+    assert p is not None and p.mismatch
+    assert abs(p.ratio - ratio) < 3 * p.se + 0.005, (p.ratio, ratio, p.se)
+    assert p.se < 0.02
+    assert "pins this ratio only" in p.text()
+
+
+def test_config_period_is_the_pendulum_period(qube: RigConfig) -> None:
+    """The config's period from energy conservation: 2π√(α/ε) at small amplitude, and the exact pendulum's
+    complete-elliptic-integral period at 1 rad (T = 4√(α/ε)·K(sin²(A/2)), 1.0663× the small-angle one)."""
+    from furuta_rt.model.plant import FurutaPlant
+
+    p = qube.lumped()
+    small = 2 * math.pi * math.sqrt(p.alpha / p.epsilon)
+    assert swing.config_period(FurutaPlant(p), 1e-3) == pytest.approx(small, rel=1e-6)
+    assert swing.config_period(FurutaPlant(p), 1.0) == pytest.approx(1.0663 * small, rel=2e-4)
+
+
+def test_a_free_swing_needs_no_command_and_a_still_arm(qube: RigConfig) -> None:
+    rec = swing_recording(qube, ["pendulum_viscous.bp=5e-5", HELD_ARM], 100.0, seconds=6.0)
+    assert swing.is_free_swing(prepare(rec, qube), qube)
+    pushed = Recording(t=rec.t, theta=rec.theta, theta_dot=rec.theta_dot, phi=rec.phi, u=np.full(len(rec.t), 0.5))
+    assert not swing.is_free_swing(prepare(pushed, qube), qube)  # 0.5 V of 10 V is a command
+    turning = Recording(t=rec.t, theta=rec.theta, theta_dot=rec.theta_dot, phi=0.5 * np.sin(rec.t), u=rec.u)
+    assert not swing.is_free_swing(prepare(turning, qube), qube)
+
+
+def test_the_real_free_decay_of_the_macstepien_rig() -> None:
+    """The macstepien rig's own recording (ODrive, 500 Hz, released near upright): the loss needs viscous and
+    Coulomb friction both, by the envelope and by the energy fit, and the period agrees with the rig's published
+    parameters to within 1 % (what the authors fitted, b2 = 1.79e-5 N m s/rad viscous alone, is the same order as the
+    viscous part here)."""
+    rig = load_rig("macstepien")
+    rec = read_mapped_csv(REALDATA / "hardware_pure_joint1_oscillations.csv", load_mapping("macstepien"))
+    read, decay = _read(rec, rig)
+    assert read.envelope.shape == "both" and decay.best == "both"
+    assert decay.fits["both"].loo_rms < 0.3 * min(decay.fits["viscous"].loo_rms, decay.fits["coulomb"].loo_rms)
+    both = decay.fits["both"]
+    assert 3e-6 < both.bp < 1.79e-5 * 2 and both.Fc > 10 * both.se_Fc
+    assert read.period is not None and not read.period.mismatch
+    assert abs(read.period.ratio - 1) < 0.01
+
+
+def test_a_short_free_swing_is_said_to_be_one(qube: RigConfig) -> None:
+    """Four seconds of a heavily damped swing at 50 Hz: too few cycles above the noise to fit a loss per cycle;
+    diagnose says so rather than fitting one."""
+    rec = swing_recording(qube, ["pendulum_viscous.bp=4e-4", HELD_ARM], 50.0, seconds=4.0, seed=2)
+    d = diagnose(rec, qube, FAST)
+    assert d.decay is None and swing.TOO_FEW in d.notes, d.notes
+
+
+def test_no_cause_needs_a_negative_mass() -> None:
+    """A remainder that only a pendulum mass of −0.4 × the config's would fit (coefficient 1.4 on its column) is no
+    possible cause; the same column at 0.4 (a mass 0.6 × the config's) is one."""
+    rig = load_rig("qube_servo2")
+    rec = swing_recording(rig, ["pendulum_viscous.bp=5e-5", HELD_ARM], 100.0, seconds=8.0)
+    prep = prepare(rec, rig)
+    ctx = Context.build(prep, rig, 0.04, 0.02, 0.005)
+    column = dict((k, c) for k, _, c in verdict.cause_columns(ctx, [PEND]))["m2"](0.0)[PEND]
+    rows = prep.valid.copy()
+    rng = np.random.default_rng(0)
+    scale = float(np.std(column[rows]))
+    draws = 1e-3 * scale * rng.standard_normal((20, int(rows.sum())))
+
+    def causes(a: float) -> list[dict]:
+        y = a * column + 1e-3 * scale * rng.standard_normal(len(column))
+        return verdict.possible_causes(ctx, {PEND: (y, rows, (1e-3 * scale) ** 2, draws)})
+
+    offered = causes(0.4)
+    assert any(c["key"] == "m2" and abs(c["coefficient"] - 0.4) < 0.02 for c in offered), offered
+    for c in causes(1.4):
+        assert c["key"] in verdict.FIXED_COLUMN_CAUSES or c["coefficient"] < 1.0, c
+        assert "× config" not in c["value"] or float(c["value"].split("=")[1].split("×")[0]) > 0, c
