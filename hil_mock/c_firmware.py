@@ -58,6 +58,8 @@ class Board(ctypes.Structure):
         ("theta_adc_max", ctypes.c_int32),
         ("theta_dot_adc_min", ctypes.c_int32),
         ("theta_dot_adc_max", ctypes.c_int32),
+        ("min_rate_hz", ctypes.c_uint16),  # 0: CONFIG's limits are the protocol's (as hil_mock.firmware)
+        ("max_watchdog_ms", ctypes.c_uint16),
     )
 
 

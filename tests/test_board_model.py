@@ -246,3 +246,45 @@ def test_a_tick_that_overruns_is_counted_once(image: Path) -> None:
     for t, s in made:
         assert s.t_us - s_first.t_us == (t - t_first) // 1000, (s.seq, s.t_us, t)
     assert sum(bool(s.status & over) for _, s in made) == 1
+
+
+def test_config_keeps_the_tick_within_the_hardware_watchdog_and_caps_the_hold(image: Path) -> None:
+    """The tick is the IWDG's only refresh (50 ms nominal, 34.7 ms with the LSI at its fastest, 47 kHz): CONFIG
+    refuses a rate below 50 Hz (at 20 Hz the board resets), and a watchdog_ms above 500 ms (a silent host would leave
+    the motor driven that long; the protocol allows 65 s). 50 Hz with 500 ms is accepted, and with the fastest LSI the
+    board runs 2 s at that rate without a reset."""
+    from firmware_protocol import Config, Status
+
+    rejected = int(StatusFlags.CONFIG_REJECTED)
+    mcu, dec = _streaming(image)
+    mcu.iwdg.lsi_hz = 47_000
+
+    def configure(rate_hz: int, watchdog_ms: int) -> Status:
+        mcu.receive(encode(Config(rate_hz, watchdog_ms)))
+        mcu.advance_to(mcu.next_tick_ns())
+        status = [m for m in dec.feed(bytes(mcu.tx)) if isinstance(m, Status)]
+        mcu.tx.clear()
+        return status[-1]
+
+    for rate_hz, watchdog_ms in ((20, 20), (49, 20), (500, 501), (500, 65535)):
+        st = configure(rate_hz, watchdog_ms)
+        assert st.flags & rejected and (st.rate_hz, st.watchdog_ms) == (500, 20), (rate_hz, watchdog_ms)
+    st = configure(50, 500)
+    assert not st.flags & rejected and (st.rate_hz, st.watchdog_ms) == (50, 500)
+    t = mcu.clock.now_ns
+    mcu.advance_to(t + 2_000_000_000)
+    assert (mcu.resets, mcu.watchdog_resets) == (1, 0)
+    assert mcu.next_tick_ns() - mcu.clock.now_ns <= 20_000_000
+
+
+@pytest.mark.hil
+def test_a_watchdog_the_board_refuses_is_one_line_from_the_daemon(image: Path, tmp_path: Path) -> None:
+    """`furuta-rt run --watchdog-ms 1000` against the board image: its CONFIG is refused (500 ms at most), and the
+    daemon says so in one line naming both values and the options, without a traceback."""
+    d = DaemonProcess(["--mock", "--mock-firmware", "board", "--config", "macstepien", "--duration", "1", "--no-tui",
+                       "--watchdog-ms", "1000", "--mock-arg=--pacing=lockstep", "--log", str(tmp_path / "run.mcap")])
+    rc = d.wait(timeout=120)
+    out = d.stderr + d.stdout
+    assert rc not in (0, None) and traceback_free(out), out
+    assert "the device rejected rate 500 Hz / watchdog 1000 ms (it runs at 500 Hz / 20 ms)" in out, out
+    assert "--watchdog-ms" in out

@@ -339,8 +339,9 @@ class SerialHardware(HardwareInterface):
                 raise UserError(f"{self.port} did not answer CONFIG with a STATUS; check the firmware")
             self.status = status  # type: ignore[assignment]
             if status.flags & StatusFlags.CONFIG_REJECTED or status.rate_hz != rate_hz:  # type: ignore[attr-defined]
+                in_force = f"{status.rate_hz} Hz / {status.watchdog_ms} ms"  # type: ignore[attr-defined]
                 raise UserError(f"the device rejected rate {rate_hz} Hz / watchdog {watchdog_ms} ms (it runs at "
-                                f"{status.rate_hz} Hz); choose a rate the firmware supports with --rate")  # type: ignore[attr-defined]
+                                f"{in_force}); choose values the firmware supports with --rate and --watchdog-ms")
             self.info = DeviceInfo(ack=ack, rate_hz=status.rate_hz, watchdog_ms=status.watchdog_ms)  # type: ignore[arg-type, attr-defined]
         while len(self._queue) > 1:  # older samples are not ticks of this run; the newest is answered first
             self._queue.popleft()

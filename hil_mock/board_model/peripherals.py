@@ -305,13 +305,14 @@ class Iwdg(Peripheral):
     def __init__(self, clock: Clock) -> None:
         super().__init__(0x40003000, {0x00: 0, 0x04: 0, 0x08: 0xFFF, 0x0C: 0})
         self.clock = clock
+        self.lsi_hz = LSI_HZ  # its clock: a test may put it anywhere in the datasheet's 17–47 kHz
         self.running = False
         self.unlocked = False
         self.reload_ns = 0
         self.reloads = 0
 
     def timeout_ns(self) -> int:
-        return round((self.regs[0x08] + 1) * 4 * (1 << self.regs[0x04]) * 1e9 / LSI_HZ)
+        return round((self.regs[0x08] + 1) * 4 * (1 << self.regs[0x04]) * 1e9 / self.lsi_hz)
 
     def expires_ns(self) -> int | None:
         return self.reload_ns + self.timeout_ns() if self.running else None

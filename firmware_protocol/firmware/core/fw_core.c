@@ -231,7 +231,9 @@ static void on_hello(fw_t *fw, const fp_hello_t *h)
 
 static void on_config(fw_t *fw, const fp_config_t *c)
 {
-    if (c->rate_hz >= 1u && c->rate_hz <= fw->board->max_rate_hz && c->watchdog_ms >= 1u) {
+    const fw_board_t *b = fw->board;
+    if (c->rate_hz >= 1u && c->rate_hz >= b->min_rate_hz && c->rate_hz <= b->max_rate_hz && c->watchdog_ms >= 1u &&
+        (b->max_watchdog_ms == 0u || c->watchdog_ms <= b->max_watchdog_ms)) {
         fw->config_rejected = 0u;
         set_rate(fw, c->rate_hz);
         set_watchdog(fw, c->watchdog_ms);

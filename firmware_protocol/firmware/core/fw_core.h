@@ -31,7 +31,7 @@
 typedef struct {
     uint32_t device_id;
     uint16_t default_rate_hz;
-    uint16_t max_rate_hz; /* CONFIG accepts 1..max_rate_hz */
+    uint16_t max_rate_hz; /* CONFIG accepts max(1, min_rate_hz)..max_rate_hz */
     uint16_t default_watchdog_ms;
     float theta_rad_per_count;
     int16_t theta_offset_counts;
@@ -44,6 +44,10 @@ typedef struct {
      * range: never (a full-turn θ sensor that wraps instead of saturating) */
     int32_t theta_adc_min, theta_adc_max;
     int32_t theta_dot_adc_min, theta_dot_adc_max;
+    /* limits of the hardware on CONFIG (0: none): the slowest tick that still refreshes the board's hardware
+     * watchdog, and the longest a COMMAND may be held without host traffic (watchdog_ms 1..max_watchdog_ms) */
+    uint16_t min_rate_hz;
+    uint16_t max_watchdog_ms;
 } fw_board_t;
 
 /* A COMMAND kept for application: the SAMPLE seq it answers, its counts and flags. */

@@ -53,7 +53,12 @@ static const fw_board_t board = {
     THETA_RAIL_MAX,
     BOARD_ADC_MIN,
     BOARD_ADC_MAX,
+    BOARD_MIN_RATE_HZ,
+    BOARD_MAX_WATCHDOG_MS,
 };
+/* the slowest tick (1 ms for the tick itself) refreshes the IWDG in time with the LSI at its fastest */
+typedef char slowest_tick_refreshes_the_iwdg[((1000u / BOARD_MIN_RATE_HZ + 1u) * BOARD_LSI_MAX_HZ <
+                                              (BOARD_IWDG_MS + 1u) * 32000u) ? 1 : -1];
 static fw_board_t board_with_id;
 
 void TIM5_IRQHandler(void);

@@ -13,6 +13,13 @@
 #define BOARD_MAX_RATE_HZ 2000u    /* SAMPLE 23 B + STATUS at 1 Mbaud: 2 kHz keeps the UART under 50 % */
 #define BOARD_WATCHDOG_MS 20u
 #define BOARD_IWDG_MS 50u          /* hardware watchdog: a hung firmware resets, and reset is zero drive */
+/* The tick is the only IWDG refresh: its period (plus the longest tick) must stay under the IWDG's timeout with the
+ * LSI at its fastest, 47 kHz (datasheet: 17-47 kHz): (50 + 1) x 32 / 47 kHz = 34.7 ms. CONFIG refuses slower. */
+#define BOARD_MIN_RATE_HZ 50u
+#define BOARD_LSI_MAX_HZ 47000u
+/* The longest a COMMAND is held without host traffic that CONFIG accepts (the protocol allows 65 535 ms): a host
+ * that stops talking leaves the motor driven for at most this long. */
+#define BOARD_MAX_WATCHDOG_MS 500u
 
 /* θ: an analog absolute angle sensor (e.g. AS5600's analog output, 0..3.3 V over one turn) on PA4;
  * counts are the 12-bit ADC reading minus 2048 (mid-scale), so the rails are -2048 and +2047. */

@@ -27,6 +27,7 @@ static fw_t fw;
 static const fw_board_t board = {
     0x51454D55u, PLANT_RATE_HZ, PLANT_RATE_HZ, 20u, PLANT_THETA_RAD_PER_COUNT, 0, PLANT_THETA_DOT_RAD_S_PER_COUNT, 0,
     PLANT_PHI_COUNTS_PER_REV, PLANT_FULL_SCALE, FP_ACT_TORQUE_NM, -32768, 32767, -32768, 32767,
+    0u, 0u, /* CONFIG's limits: the protocol's (a host may ask for a slow rate and a long watchdog under qemu) */
 };
 
 void SysTick_Handler(void);
