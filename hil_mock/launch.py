@@ -3,6 +3,11 @@
 The child ends with its parent: it gets the read end of a pipe (``--exit-with-fd``) whose only write end
 stays in this process, so when this process dies, however (SIGKILL included), the child reads end of file,
 zeroes its actuator, closes its pty and exits.
+
+The child runs in a session of its own: a terminal's signals (Ctrl-C, Ctrl-\\, a closed terminal's SIGHUP) go
+to the parent's process group and not to it, so a run stopped that way still reaches the device with its
+u = 0 and STOP (the device dying first would hang up under the host instead). It stops when the parent says
+(``stop_mock_subprocess``) or dies.
 """
 
 from __future__ import annotations
@@ -36,7 +41,7 @@ def start_mock_subprocess(args: Sequence[str] = (), timeout: float = 30.0) -> tu
     try:
         proc = subprocess.Popen(
             [sys.executable, "-m", "hil_mock", "--pty", "--exit-with-fd", str(watch_r), *args],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, pass_fds=(watch_r,),
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, pass_fds=(watch_r,), start_new_session=True,
         )
     except BaseException:
         os.close(watch_w)

@@ -244,8 +244,8 @@ def test_killed_run_leaves_a_log_readable_to_its_last_second(tmp_path: Path) -> 
 
 
 def test_ctrl_c_in_a_terminal_stops_the_mock_run_cleanly(tmp_path: Path) -> None:
-    """Ctrl-C in a terminal signals the whole process group: the daemon, its logger and hil-mock at once.
-    hil-mock may close its pty before the daemon notices the signal; it is still an operator stop."""
+    """Ctrl-C in a terminal signals the whole process group: the daemon and its logger (hil-mock runs in a session
+    of its own and waits for the daemon's STOP: tests/test_signals.py); an operator stop."""
     d = mock_run(tmp_path, "ctrl_c", 60.0)
     d.wait_for_line("→ balancing")
     time.sleep(1.0)

@@ -10,6 +10,7 @@ signals end the command with one line and 128 + the signal's number, never a tra
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -20,6 +21,7 @@ import pytest
 from test_reliability_harness import (
     FURUTA_RT,
     ROOT,
+    DaemonProcess,
     MockProcess,
     read_summary,
     start_daemon,
@@ -161,3 +163,30 @@ def test_ctrl_c_while_the_modules_load_is_one_line_not_a_traceback(command: list
     assert traceback_free(err + out), err
     assert proc.returncode == 130, err
     assert len(err.strip().splitlines()) == 1 and "interrupted" in err, err
+
+
+@pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGINT, signal.SIGQUIT], ids=["SIGHUP", "SIGINT", "SIGQUIT"])
+def test_run_mock_the_device_outlives_a_terminal_signal_and_gets_the_stop(tmp_path: Path, sig: int) -> None:
+    """`run --mock` from a terminal: the signal reaches the whole foreground group. hil-mock (a child of the daemon)
+    must not die or stop serving before the daemon's u = 0 and STOP reach it. Judged by the device's own count:
+    a host that closes the port while the device still streams is a hang-up (the device zeroed itself); a STOP
+    first leaves the device idle, so the port closing is no hang-up. hil-mock killed by the signal writes no
+    statistics at all."""
+    stats = tmp_path / "mock.json"
+    daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "60", "--log", str(tmp_path / "run.mcap"),
+                            "--summary-json", str(tmp_path / "summary.json"), f"--mock-arg=--stats-json={stats}"])
+    try:
+        daemon.wait_for_line("→ balancing")
+        time.sleep(0.3)
+        daemon.kill_group(sig)
+        rc = daemon.wait()
+    finally:
+        daemon.kill_group(signal.SIGKILL)
+    assert traceback_free(daemon.stderr + daemon.stdout), daemon.stderr
+    assert rc == 0, daemon.stderr
+    assert read_summary(tmp_path)["end"] == "operator_stop"
+    assert stats.exists(), f"hil-mock wrote no statistics: it died of the {signal.Signals(sig).name}"
+    device = json.loads(stats.read_text())
+    assert device["handshakes"] == 1 and device["watchdog_trips"] == 0, device
+    assert device["hangups"] == 0, "the port closed while the device streamed: it never got the STOP"
+    assert not read_log(tmp_path / "run.mcap").recovered
