@@ -421,6 +421,8 @@ class VirtualDevice:
                     self._await_answer(pc() + LOCKSTEP_TIMEOUT_S)
                     realtime = False
         finally:
+            with contextlib.suppress(OSError):  # what the host sent last (its STOP) reaches the firmware before it stops
+                self._read()
             fw.hangup()
             self._close()
 

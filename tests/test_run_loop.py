@@ -684,3 +684,35 @@ def test_a_hanging_pendulum_is_told_once_why_it_does_not_arm(rig: RigConfig) -> 
     assert r.balancing_ticks == 0 and not [w for w in dev.writes if w[3] & ENABLE]
     printed = [e for e in dev.journal if e[0] == "print" and "not armed" in e[2]]
     assert len(printed) == 1 and printed[0][1] == "WARNING"
+
+
+class _TwiceStallingController(_StallingController):
+    """The stall of ``_StallingController``, and another one on the SAMPLE that would end the run of skipped periods
+    (the newest of the burst the first stall left waiting)."""
+
+    second_stall_t = _StallingController.stall_at_t + 15 / RATE
+
+    def update(self, m: Measurement) -> Any:
+        if abs(m.t - self.second_stall_t) < 1e-6:
+            time.sleep(0.030)
+        return super().update(m)
+
+
+def test_a_sample_that_ends_a_skipped_run_and_ages_too_keeps_one_overrun(rig: RigConfig) -> None:
+    """The SAMPLE after a stall's burst ages as well (a second stall between its read and write): it is skipped, the
+    run of skipped periods goes on to the next SAMPLE, and the whole run is still one overrun."""
+    stalled = round(_StallingController.stall_at_t * RATE)
+    dev = SimDevice(rig, bursts={stalled + 1: 15, stalled + 16: 15})
+    ctrl = Controller.from_rig(rig)
+    ctrl.__class__ = _TwiceStallingController
+    loop, sink = make_loop(rig, dev, duration=2.0, controller=ctrl, stale_age_periods=LoopSettings.stale_age_periods)
+    r = loop.run()
+    answered = {w[1] for w in dev.writes}
+    assert set(range(stalled, stalled + 30)).isdisjoint(answered), "no COMMAND from either aged SAMPLE's period"
+    timing = {rec[F["seq"]]: rec for rec in sink.ticks()}
+    before = max(seq for seq in answered if seq < stalled)
+    after = min(seq for seq in answered if seq >= stalled + 30)
+    skipped = {seq for seq, rec in timing.items() if rec[F["latency_us"]] == -1.0}
+    assert set(range(before + 1, after)) <= skipped and r.skipped_periods == len(skipped)
+    assert timing[after][F["overruns"]] - timing[before][F["overruns"]] == 1, "one run of skipped periods, one overrun"
+    assert r.end == "duration"

@@ -328,7 +328,7 @@ class ControlLoop:
         prev_seq = -1
         prev_balancing = False
         wrote_prev = False
-        skipped = 0
+        skipped = ended_run = 0
         first_dev_us = first_t1 = prev_dev_us = 0
         balance_start = -1
         win_ticks, win_start, win_max = 0, perf(), 0.0
@@ -401,7 +401,7 @@ class ControlLoop:
                 late = skipped > 0 or (wrote_prev and status & _COMMAND_LATE != 0)
                 if late:
                     r.overruns += 1
-                skipped = 0
+                ended_run, skipped = skipped, 0
             theta_dev, theta_dot, phi_dev = cal.to_si(s.theta_adc, s.theta_dot_adc - tdo, s.phi_count)
             if startup is None:
                 theta, phi = theta_dev, phi_dev
@@ -451,7 +451,9 @@ class ControlLoop:
                 # the device's tick would not do: a mock paced in lockstep keeps no real-time clock.)
                 stale = True
                 r.skipped_periods += 1
-                skipped += 1
+                if late and ended_run:  # it did not end the run of skipped periods after all: still one overrun
+                    r.overruns -= 1
+                skipped = ended_run + 1
             if state is _TRIPPED or not stale:
                 if acting:
                     hw.write(seq, counts(u), _ENABLE)
