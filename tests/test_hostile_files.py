@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import time
 from pathlib import Path
@@ -17,6 +18,7 @@ import pytest
 from test_reliability_harness import (
     FURUTA_RT,
     ROOT,
+    DaemonProcess,
     MockProcess,
     read_summary,
     start_daemon,
@@ -269,3 +271,47 @@ def test_a_log_cut_short_while_replay_reads_it_is_one_line_exit_2_not_a_bus_erro
             proc.kill()
     _one_line(subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr), "shrank", str(log))
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["plain.mcap", "run.mcap"]
+
+
+def _spawned_child(daemon: DaemonProcess) -> int | None:
+    """pid of the daemon's logger (a multiprocessing 'spawn' child), once it exists."""
+    for pid in daemon.children():
+        try:
+            if b"multiprocessing" in Path(f"/proc/{pid}/cmdline").read_bytes():
+                return pid
+        except OSError:
+            continue
+    return None
+
+
+def test_the_loser_of_a_race_for_the_live_view_port_says_so_and_advertises_nothing(tmp_path: Path) -> None:
+    """The port is free when the run checks it, and taken (here by a listener standing for another run) before the
+    run's logger binds it: the run must not print "live view on ws://…" (that is the other program's view) — one
+    line naming the port, exit 2, before the device streams; the log holds no tick."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    log = tmp_path / "run.mcap"
+    daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "5", "--log", str(log), f"--foxglove={port}"])
+    winner = socket.socket()
+    try:
+        end = time.monotonic() + TIMEOUT_S
+        while (logger := _spawned_child(daemon)) is None and daemon.proc.poll() is None and time.monotonic() < end:
+            time.sleep(0.001)
+        assert logger is not None, daemon.stderr
+        os.kill(logger, signal.SIGSTOP)  # past the run's port check, before its live view binds (seconds of imports)
+        winner.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        winner.bind(("127.0.0.1", port))
+        winner.listen()
+        os.kill(logger, signal.SIGCONT)
+        rc = daemon.wait()
+    finally:
+        daemon.kill_group(signal.SIGKILL)
+        winner.close()
+    out = daemon.stderr + daemon.stdout
+    assert traceback_free(out), out
+    assert "live view on" not in out, out
+    assert rc == 2, out
+    errors = [line for line in daemon.stderr.splitlines() if "error" in line]
+    assert len(errors) == 1 and f"--foxglove={port}" in errors[0] and "took the port" in errors[0], out
+    assert not log.exists() or read_log(log).n_ticks == 0

@@ -69,20 +69,23 @@ class Channel:
 
 
 class Flag:
-    """multiprocessing.Event's set/is_set/wait on a pipe: set in a child, read in the parent."""
+    """multiprocessing.Event's set/is_set/wait on a pipe: set in a child, read in the parent; ``set(note)`` can say
+    why (the parent reads it as ``note`` once the flag is seen set)."""
 
     def __init__(self) -> None:
         self._r: Connection
         self._w: Connection
         self._r, self._w = Pipe(duplex=False)
         self._set = False
+        self.note = ""
 
-    def set(self) -> None:
-        self._w.send_bytes(b"1")
+    def set(self, note: str = "") -> None:
+        self._w.send_bytes(note.encode())
 
     def wait(self, timeout: float | None = None) -> bool:
         if not self._set and self._r.poll(timeout):
             self._set = True
+            self.note = self._r.recv_bytes().decode(errors="replace")
         return self._set
 
     def is_set(self) -> bool:

@@ -160,6 +160,7 @@ class _Children:
         self.logger: Any = None
         self.dash_q: Any = None
         self.dashboard: Any = None
+        self.live_failed: Any = None
 
     def spawn_logger(self, setup: LogSetup) -> None:
         """Start the logger process (returns at once; ``wait_logger`` waits for it to be ready)."""
@@ -167,8 +168,9 @@ class _Children:
         self._ready = Flag()
         self.log_failed = Flag()
         self.log_opened = Flag()
+        self.live_failed = Flag() if setup.foxglove_port is not None else None
         proc = self.ctx.Process(target=logger_process,
-                                args=(setup, self.log_q, self._ready, self.log_failed, self.log_opened),
+                                args=(setup, self.log_q, self._ready, self.log_failed, self.log_opened, self.live_failed),
                                 name="furuta-rt-logger")
         proc.start()
         self.logger = proc
@@ -321,6 +323,10 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
         hw.open()
         warnings += hw.warnings
         children.wait_logger()
+        if children.live_failed is not None and children.live_failed.is_set():  # lost the port to another program
+            raise UserError(f"--foxglove={opts.foxglove_port}: the live view cannot listen on {opts.foxglove_host}:"
+                            f"{opts.foxglove_port} ({children.live_failed.note}): another run or bridge took the port after "
+                            "this run found it free; the run did not start. Give another port, e.g. --foxglove=8766")
         if opts.foxglove_port is not None:
             from furuta_rt.runtime.live import LAYOUT_PATH
             from furuta_rt.runtime.live_door import CLIENTS, SUBPROTOCOLS

@@ -119,12 +119,17 @@ class LiveView:
         self.server.stop()
 
 
-def start_live_view(port: int, host: str = HOST) -> LiveView | None:
-    """The live view on ``host:port``, or None with one line on stderr when it cannot start (the run goes on)."""
+def start_live_view(port: int, host: str = HOST, failed: Any = None) -> LiveView | None:
+    """The live view on ``host:port``, or None when it cannot start: ``failed.set(why)`` (a channel.Flag: the run
+    says it and stops, as for a port found busy at its start), else one line on stderr (the run goes on)."""
     try:
         return LiveView(port, host)
     except Exception as err:  # the sdk raises its own errors for a busy port; the loop must not care
-        print(f"furuta-rt: warning: the live view could not start on {host}:{port}: {err}", file=sys.stderr, flush=True)
+        why = (err.strerror if isinstance(err, OSError) and err.strerror else str(err)).lower()
+        if failed is not None:
+            failed.set(why)
+        else:
+            print(f"furuta-rt: warning: the live view could not start on {host}:{port}: {why}", file=sys.stderr, flush=True)
         return None
 
 

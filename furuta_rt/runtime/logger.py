@@ -141,7 +141,8 @@ def _failure(path: str, err: Exception) -> str:
     return f"cannot write the log {path}: {cause}; the loop goes on, the log ends here"
 
 
-def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None, opened: Any = None) -> None:
+def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None, opened: Any = None,
+                   live_failed: Any = None) -> None:
     """Entry point of the logger process (spawned). Ends on "close" or when the parent dies.
 
     A write error (disk full, file too large, ...) is said in one line on stderr and flagged in
@@ -150,7 +151,8 @@ def logger_process(setup: LogSetup, q: Any, ready: Any, failed: Any = None, open
     """
     ignore_stop_signals()  # Ctrl-C or a closed terminal reaches the whole group: the daemon decides
     log: TickLog | None = TickLog(setup) if setup.path else None
-    live: LiveView | None = start_live_view(setup.foxglove_port, setup.foxglove_host) if setup.foxglove_port else None
+    live: LiveView | None = (start_live_view(setup.foxglove_port, setup.foxglove_host, live_failed)
+                             if setup.foxglove_port else None)
     ready.set()
     parent = multiprocessing.parent_process()
     last_flush = time.monotonic()
