@@ -4,8 +4,9 @@
 new host session are inherited) whose protocol is made by ``furuta_fw.elf`` running on ``mcu.Stm32f401``. The plant
 reaches the firmware only through the pins: θ and θ̇ as 12-bit ADC codes on PA4/PB0 (the board's calibration from
 board_config.h, a full-turn θ sensor wrapping as the rig says), φ as TIM2's quadrature count, and the torque or
-voltage on the plant is TIM3's duty (CCR1 / (ARR + 1)) signed by the DIR pin PA7 times the board's full scale — zero
-whenever PA6 is not driven by TIM3 (the driver's pull-down). One ``tick`` lets device time run to TIM5's next update;
+voltage on the plant is the PWM duty on PA8 (TIM1 CH1: CCR1 / (ARR + 1), zero with its main output off) signed by the
+DIR pin PA7 times the board's full scale — zero whenever PA8 is not driven (the driver's pull-down), full while it is
+a GPIO output set high. One ``tick`` lets device time run to TIM5's next update;
 the device clock is the MCU's.
 
 What the host sees is decoded from the wire only (the firmware's state stays inside the image): streaming, the
@@ -15,7 +16,6 @@ SAMPLE seq a COMMAND answers, and the counters of ``hil-mock``'s summary are tho
 from __future__ import annotations
 
 import dataclasses
-import math
 import re
 from pathlib import Path
 
@@ -31,7 +31,8 @@ from hil_mock.firmware import Firmware
 
 BOARD_CONFIG = FIRMWARE_DIR / "stm32f4" / "board_config.h"
 THETA_CHANNEL, THETA_DOT_CHANNEL = 4, 8  # ADC1_IN4 = PA4, ADC1_IN8 = PB0
-PIN_PWM, PIN_DIR = 6, 7  # PA6 = TIM3_CH1 (AF2), PA7 = direction
+PIN_PWM, PIN_DIR = 8, 7  # PA8 = TIM1_CH1 (AF1), PA7 = direction
+MODE_OUTPUT, MODE_AF, AF_TIM1 = 1, 2, 1
 ADC_MID = 2048
 
 
@@ -46,6 +47,22 @@ def board_config() -> dict[str, float]:
     for m in re.finditer(r"#define (BOARD_\w+) \(?(-?[0-9.]+)[uf]?\)?", BOARD_CONFIG.read_text()):
         out[m.group(1)] = float(m.group(2))
     return out
+
+
+def bridge_duty(mcu: Stm32f401, settled: bool = False) -> float:
+    """The signed duty in [−1, 1] the H-bridge gets from PA8 (PWM) and PA7 (DIR, high = positive): the one in
+    force, or ``settled``, the one from the next PWM period on (the preloads transferred, 50 µs later: what drives the
+    plant over a tick)."""
+    gpio = mcu.gpioa
+    mode = gpio.mode(PIN_PWM)
+    if mode == MODE_OUTPUT:
+        duty = 1.0 if gpio.output(PIN_PWM) else 0.0
+    elif mode == MODE_AF and gpio.alternate(PIN_PWM) == AF_TIM1:
+        duty = mcu.tim1.oc1_duty(outputs_off=mcu.tim1_outputs_off(), settled=settled)
+    else:
+        duty = 0.0  # an input, analog or another function: the driver's pull-down holds it low
+    positive = gpio.mode(PIN_DIR) == MODE_OUTPUT and gpio.output(PIN_DIR)
+    return duty if positive or not duty else -duty
 
 
 def board_calibration(rig: RigConfig) -> Calibration:
@@ -101,14 +118,8 @@ class BoardFirmware(Firmware):
         return int(count_of(self.sim.phi, self.model.calibration.phi_rad_per_count))
 
     def _drive(self) -> float:
-        """The actuator command the H-bridge gets from PA6 (TIM3 CH1 PWM) and PA7 (DIR)."""
-        gpio, tim = self.mcu.gpioa, self.mcu.tim3
-        if gpio.mode(PIN_PWM) != 2 or gpio.alternate(PIN_PWM) != 2 or not tim.regs[tim.CR1] & 1 \
-                or not tim.regs[tim.CCER] & 1:
-            return 0.0  # PA6 not driven by TIM3: the driver's pull-down holds it low
-        duty = min(tim.regs[tim.CCR1], tim.regs[tim.ARR] + 1) / (tim.regs[tim.ARR] + 1)
-        sign = 1.0 if gpio.mode(PIN_DIR) == 1 and gpio.output(PIN_DIR) else -1.0
-        return math.copysign(duty * self.full_scale, sign) if duty else 0.0
+        """The actuator command the H-bridge makes of PA8 and PA7."""
+        return bridge_duty(self.mcu, settled=True) * self.full_scale
 
     # ------------------------------------------------------------ after each run of the MCU
     def _after(self) -> None:

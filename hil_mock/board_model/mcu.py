@@ -57,6 +57,8 @@ PPB_BASE, PPB_SIZE = 0xE0000000, 0x100000
 IRQ_COUNT = 86
 MAX_INSTRUCTIONS = 5_000_000  # per run of a handler: ~60 ms of CPU at 84 MHz, 100 worst ticks
 WFI = 0xBF30
+DBGMCU_IDCODE, DBGMCU_CR, DBGMCU_APB1_FZ, DBGMCU_APB2_FZ = 0xE0042000, 0xE0042004, 0xE0042008, 0xE004200C
+IDCODE_F401 = 0x10006433  # REV_ID 0x1000, DEV_ID 0x433 (STM32F401xD/E)
 FRAME_REGS = (UC_ARM_REG_R0, UC_ARM_REG_R1, UC_ARM_REG_R2, UC_ARM_REG_R3, UC_ARM_REG_R12, UC_ARM_REG_LR)
 
 
@@ -73,18 +75,21 @@ def load_elf(path: Path) -> tuple[list[tuple[int, bytes]], dict[str, int]]:
         p_type, p_offset, _vaddr, p_paddr, p_filesz = struct.unpack_from("<IIIII", data, e_phoff + i * e_phentsize)
         if p_type == 1 and p_filesz:
             segments.append((p_paddr, data[p_offset:p_offset + p_filesz]))
-    symbols: dict[str, int] = {}
+    entries: list[tuple[bool, str, int]] = []
     sections = [struct.unpack_from("<IIIIIIIIII", data, e_shoff + i * e_shentsize) for i in range(e_shnum)]
     for sh in sections:
         if sh[1] != 2:  # SHT_SYMTAB
             continue
         strtab = sections[sh[6]]
         for off in range(sh[4], sh[4] + sh[5], 16):
-            name_off, value = struct.unpack_from("<II", data, off)
+            name_off, value, _size, info = struct.unpack_from("<IIIB", data, off)
             end = data.index(b"\0", strtab[4] + name_off)
             name = data[strtab[4] + name_off:end].decode()
             if name and not name.startswith("$"):
-                symbols.setdefault(name, value)
+                entries.append((info >> 4 == 2, name, value))  # STB_WEAK
+    symbols: dict[str, int] = {}
+    for _weak, name, value in sorted(entries, key=lambda e: e[0]):  # a weak alias never names its target's code
+        symbols.setdefault(name, value)
     return segments, symbols
 
 
@@ -105,6 +110,7 @@ class Stm32f401:
         self.watchdog_resets = 0
         self.on_reset: Callable[[], None] | None = None
         self._stalls: dict[int, list[int]] = {}  # code address → [device ns it takes, calls left (-1: all)]
+        self.dbgmcu = {DBGMCU_CR: 0, DBGMCU_APB1_FZ: 0, DBGMCU_APB2_FZ: 0}  # debug domain: kept across a system reset
         self._build()
 
     # ------------------------------------------------------------ construction
@@ -113,7 +119,7 @@ class Stm32f401:
         self.gpioa = Gpio("GPIOA", 0x40020000, 0, 0xA8000000, 0x0C000000, 0x64000000)
         self.gpiob = Gpio("GPIOB", 0x40020400, 1, 0x00000280, 0x000000C0, 0x00000100)
         self.tim2 = Timer("TIM2", 0x40000000, 0, 32, self.clock, None, self.raise_irq)
-        self.tim3 = Timer("TIM3", 0x40000400, 1, 16, self.clock, None, self.raise_irq)
+        self.tim1 = Timer("TIM1", 0x40010000, 0, 16, self.clock, None, self.raise_irq, advanced=True)
         self.tim5 = Timer("TIM5", 0x40000C00, 3, 32, self.clock, IRQ_TIM5, self.raise_irq)
         self.adc = Adc()
         self.adc.channel_code = lambda ch: self.adc_code(ch)
@@ -121,7 +127,7 @@ class Stm32f401:
         self.usart = Usart(self.raise_irq, self.tx)
         self.iwdg = Iwdg(self.clock)
         self.flash = Flash()
-        periph: list[Peripheral] = [self.rcc, self.gpioa, self.gpiob, self.tim2, self.tim3, self.tim5, self.adc,
+        periph: list[Peripheral] = [self.rcc, self.gpioa, self.gpiob, self.tim1, self.tim2, self.tim5, self.adc,
                                     self.usart, self.iwdg, self.flash]
         self._by_page = {p.base >> 10: p for p in periph}
         self._by_page[0x40012300 >> 10] = self.adc  # ADC common registers (ADC_CCR) share ADC1's model
@@ -131,6 +137,7 @@ class Stm32f401:
         self.active: list[int] = []  # exception numbers being handled, innermost last
         self.demcr = 0
         self.dwt_ctrl = 0x40000000
+        self.halted = False  # a debugger holds the core (debug_halt)
         self.dwt_cyccnt_base = 0
         self.asleep = False
         self.error: Exception | None = None
@@ -185,10 +192,10 @@ class Stm32f401:
         end = self.clock.now_ns + entry[0]
         while (t := self.tim5.next_update_ns()) is not None and t <= end:
             self.clock.now_ns = t
-            self.tim3.sync()
+            self._sync_pwm()
             self.tim5.update_event(t)
         self.clock.now_ns = end
-        self.tim3.sync()
+        self._sync_pwm()
 
     # ------------------------------------------------------------ memory-mapped I/O
     def _fail(self, err: Exception) -> int:
@@ -237,6 +244,10 @@ class Stm32f401:
                 return self.dwt_ctrl
             if addr == 0xE000EDFC:
                 return self.demcr
+            if addr == DBGMCU_IDCODE:
+                return IDCODE_F401
+            if addr in self.dbgmcu:
+                return self.dbgmcu[addr]
             nvic = self._nvic_bits(addr)
             if nvic is not None:
                 bits, n = nvic
@@ -264,6 +275,8 @@ class Stm32f401:
                 self.dwt_ctrl = value
             elif addr == 0xE000EDFC:
                 self.demcr = value
+            elif addr in self.dbgmcu:
+                self.dbgmcu[addr] = value
             elif (nvic := self._nvic_bits(addr)) is not None:
                 bits, n = nvic
                 setting = addr < 0xE000E180 or 0xE000E200 <= addr < 0xE000E280
@@ -381,6 +394,10 @@ class Stm32f401:
                 best, name = v, sym
         return name
 
+    def hard_fault(self) -> None:
+        """A HardFault now (what a bus error, an undefined instruction or a stack overflow raises on the silicon)."""
+        self._take(3)
+
     def deliver(self) -> None:
         """Take every pending interrupt the current priority allows (from the idle thread)."""
         while (irq := self._next_irq()) is not None:
@@ -410,28 +427,65 @@ class Stm32f401:
             self.deliver()
 
     def advance_to(self, t_ns: int) -> None:
-        """Let device time run to ``t_ns``: timer update events and the watchdog in time order, handlers run."""
+        """Let device time run to ``t_ns``: timer update events and the watchdog in time order, handlers run (none
+        while a debugger holds the core: the lines stay pending)."""
         while True:
-            t_upd = self.tim5.next_update_ns()
-            t_wdg = self.iwdg.expires_ns()
+            frozen = self._frozen()
+            t_upd = None if frozen["TIM5"] else self.tim5.next_update_ns()
+            t_wdg = None if frozen["IWDG"] else self.iwdg.expires_ns()
             t_next = min(t for t in (t_upd, t_wdg, t_ns + 1) if t is not None)
             if t_next > t_ns:
                 break
-            self.clock.now_ns = max(self.clock.now_ns, t_next)  # a watchdog that expired inside a stalled handler
-            self.tim3.sync()
+            self._move_to(max(self.clock.now_ns, t_next))  # a watchdog that expired inside a stalled handler
             if t_wdg is not None and t_next == t_wdg:
                 self.watchdog_resets += 1
+                self.halted = False
                 self.reset()
                 continue
             self.tim5.update_event(t_next)
-            self.deliver()
-        self.clock.now_ns = max(self.clock.now_ns, t_ns)
-        self.tim3.sync()
+            if not self.halted:
+                self.deliver()
+        self._move_to(max(self.clock.now_ns, t_ns))
+
+    def _move_to(self, t_ns: int) -> None:
+        """Device time to ``t_ns``; while halted, what DBGMCU freezes does not see it pass."""
+        dt = t_ns - self.clock.now_ns
+        frozen = self._frozen()
+        for tim in (self.tim1, self.tim5):
+            if frozen[tim.name]:
+                tim.t0_ns += dt
+        if frozen["IWDG"]:
+            self.iwdg.reload_ns += dt
+        self.clock.now_ns = t_ns
+        self._sync_pwm()
+
+    def _frozen(self) -> dict[str, bool]:
+        """What does not count while the core is halted: DBGMCU_APB1_FZ DBG_TIM5_STOP (bit 3), DBG_IWDG_STOP (12);
+        DBGMCU_APB2_FZ DBG_TIM1_STOP (0). Nothing while the core runs."""
+        apb1, apb2 = (self.dbgmcu[DBGMCU_APB1_FZ], self.dbgmcu[DBGMCU_APB2_FZ]) if self.halted else (0, 0)
+        return {"TIM1": bool(apb2 & 1), "TIM5": bool(apb1 >> 3 & 1),
+                "IWDG": bool(apb1 >> 12 & 1)}
+
+    def _sync_pwm(self) -> None:
+        self.tim1.sync()
+
+    def debug_halt(self) -> None:
+        """A debugger stops the core (between two interrupts): no handler runs until ``debug_resume``; the timers and
+        the IWDG run on unless the firmware set their DBGMCU freeze bits (TIM1's outputs then go off, as MOE = 0)."""
+        self.halted = True
+
+    def debug_resume(self) -> None:
+        self.halted = False
+        self.deliver()
+
+    def tim1_outputs_off(self) -> bool:
+        """TIM1's outputs disabled by a debugger halt with DBG_TIM1_STOP (RM0368: as if MOE were reset)."""
+        return self._frozen()["TIM1"]
 
     def pause(self, dt_ns: int) -> None:
         """The whole board held for ``dt_ns`` (timers, watchdog and cycle counter frozen): device time moves on."""
         self.clock.now_ns += dt_ns
-        for tim in (self.tim2, self.tim3, self.tim5):
+        for tim in (self.tim1, self.tim2, self.tim5):
             tim.t0_ns += dt_ns
         self.iwdg.reload_ns += dt_ns
         self.dwt_cyccnt_base -= dt_ns * 84 // 1000

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-TIMER_HZ = 84_000_000  # TIM2/3/5 kernel clock with APB1 at 42 MHz (×2), board_config.h BOARD_TIMER_HZ
+TIMER_HZ = 84_000_000  # TIM2/5 kernel clock with APB1 at 42 MHz (×2), TIM1's with APB2 at 84 MHz: BOARD_TIMER_HZ
 LSI_HZ = 32_000  # the IWDG's clock (nominal; RM0368 gives 17–47 kHz)
 IRQ_TIM5, IRQ_USART2 = 50, 38
 
@@ -116,17 +116,21 @@ _TIM_REGS = {0x00: 0, 0x04: 0, 0x08: 0, 0x0C: 0, 0x10: 0, 0x14: 0, 0x18: 0, 0x1C
 
 
 class Timer(Peripheral):
-    """A general-purpose timer. Up-counting from the kernel clock, or the encoder interface (SMS = 1..3) where the
-    count is the plant's; the update event sets UIF (and raises ``irq`` with UIE); CCR1 preload (OC1PE) and ARR
-    preload (ARPE) take effect at the update event, as on the silicon."""
+    """A general-purpose timer (or TIM1, the advanced one: ``advanced``, with RCR and BDTR). Up-counting from the
+    kernel clock, or the encoder interface (SMS = 1..3) where the count is the plant's; the update event sets UIF
+    (and raises ``irq`` with UIE); CCR1 preload (OC1PE) and ARR preload (ARPE) take effect at the update event, as on
+    the silicon."""
 
     CR1, SMCR, DIER, SR, EGR, CCMR1, CCER, CNT, PSC, ARR, CCR1 = 0x00, 0x08, 0x0C, 0x10, 0x14, 0x18, 0x20, 0x24, 0x28, 0x2C, 0x34
+    RCR, BDTR = 0x30, 0x44
+    MOE, OSSI = 1 << 15, 1 << 10
 
     def __init__(self, name: str, base: int, clock_bit: int, bits: int, clock: Clock, irq: int | None,
-                 raise_irq: Callable[[int], None]) -> None:
-        super().__init__(base, _TIM_REGS)
+                 raise_irq: Callable[[int], None], advanced: bool = False) -> None:
+        super().__init__(base, {**_TIM_REGS, self.RCR: 0, self.BDTR: 0} if advanced else _TIM_REGS)
         self.name = name
-        self.clock_bit = ("APB1ENR", clock_bit)
+        self.advanced = advanced
+        self.clock_bit = ("APB2ENR" if advanced else "APB1ENR", clock_bit)
         self.mask = (1 << bits) - 1
         self.regs[self.ARR] = self.mask
         self.clock = clock
@@ -150,6 +154,18 @@ class Timer(Peripheral):
             return self.regs[self.CNT]
         return int((self.clock.now_ns - self.t0_ns) / self.tick_ns()) & self.mask
 
+    def oc1_duty(self, outputs_off: bool = False, settled: bool = False) -> float:
+        """Share of the PWM period CH1's output is high (PWM mode 1, up-counting): CCR1 / (ARR + 1) in force, 0
+        while the counter or CC1E is off; on TIM1 also 0 while the main output is off (MOE clear, or ``outputs_off``:
+        a debugger halt with DBG_TIM1_STOP), the output then at its idle level OIS1, which board.c leaves low.
+        ``settled``: with the preloads transferred (the duty from the next update event on)."""
+        if not self.regs[self.CR1] & 1 or not self.regs[self.CCER] & 1 or self.regs[self.CCMR1] >> 4 & 7 != 6:
+            return 0.0
+        if self.advanced and (outputs_off or not self.regs[self.BDTR] & self.MOE):
+            return 0.0
+        ccr, arr = (self.regs[self.CCR1], self.regs[self.ARR]) if settled else (self.ccr1_active, self.arr_active)
+        return min(ccr, arr + 1) / (arr + 1)
+
     def next_update_ns(self) -> int | None:
         """When the next update event happens (None: not counting)."""
         if not self.counting():
@@ -159,7 +175,7 @@ class Timer(Peripheral):
         return self.clock.now_ns + max(1, round(ticks * self.tick_ns()))
 
     def sync(self) -> None:
-        """Update events of a timer without interrupt (TIM3's PWM period) up to now: the preloads transfer."""
+        """Update events of a timer without interrupt (TIM1's PWM period) up to now: the preloads transfer."""
         if self.counting() and (self.clock.now_ns - self.t0_ns) / self.tick_ns() >= self.arr_active + 1:
             periods = int((self.clock.now_ns - self.t0_ns) / self.tick_ns()) // (self.arr_active + 1)
             self.t0_ns += round(periods * (self.arr_active + 1) * self.tick_ns())
@@ -203,6 +219,9 @@ class Timer(Peripheral):
             self.arr_active = value & self.mask  # no preload: at once (a lower ARR than CNT runs to the wrap)
         if off == self.CCR1 and not self.regs[self.CCMR1] & (1 << 3):
             self.ccr1_active = value
+        if off == self.BDTR and value & (1 << 8 | 1 << 12 | 1 << 14):
+            raise ModelError(f"board model: {self.name}_BDTR 0x{value:X}: dead time, break input and automatic "
+                             "output enable are not modelled")
 
 
 class Adc(Peripheral):

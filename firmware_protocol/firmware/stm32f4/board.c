@@ -7,8 +7,11 @@
  *   USART2 IRQ       higher priority: received bytes into rx_ring, tx_ring out (1 Mbaud, 8N1)
  *   TIM2             quadrature encoder (PA0 = A, PA1 = B), 32-bit count
  *   ADC1 injected    θ on PA4 (IN4), θ̇ on PB0 (IN8), 12 bit, started by software at the tick
- *   TIM3 CH1         PWM on PA6 at 20 kHz, direction on PA7
+ *   TIM1 CH1         PWM on PA8 at 20 kHz, direction on PA7; the advanced timer because its main output (MOE) goes
+ *                    off — the pin driven low — when a fault handler clears it or a debugger halts the core
  *   IWDG             50 ms: a hung firmware resets, and reset leaves the PWM pin an input (zero drive)
+ *   faults           any unexpected exception (HardFault too) drives the PWM pin low before it spins (startup.c)
+ *   debugger halt    TIM1's output off, the tick and the IWDG stopped (DBGMCU): no drive, no reset, no overrun
  *
  * Only the tick touches the core (fw_t), so it needs no locks. No floating point anywhere here.
  */
@@ -27,7 +30,9 @@
 #define THETA_RAIL_MIN BOARD_ADC_MIN
 #define THETA_RAIL_MAX BOARD_ADC_MAX
 #endif
+#define PIN_PWM 8u                              /* PA8 = TIM1_CH1 (AF1) */
 #define PIN_DIR 7u                              /* PA7 */
+#define PWM_TIM TIM1_BASE
 
 struct fw_hal {
     ring_t rx, tx;
@@ -104,11 +109,11 @@ void hal_actuator_write(fw_hal_t *h, int16_t counts)
         /* direction change: the duty runs from a preload, so the old duty would drive the new direction until the
          * PWM period ends; zero it now (UG transfers the preload and restarts the period with the output low), then
          * turn the bridge round while it does not drive */
-        TIM_CCR1(TIM3_BASE) = 0u;
-        TIM_EGR(TIM3_BASE) = TIM_EGR_UG;
+        TIM_CCR1(PWM_TIM) = 0u;
+        TIM_EGR(PWM_TIM) = TIM_EGR_UG;
         GPIO_BSRR(GPIOA_BASE) = counts > 0 ? (1u << PIN_DIR) : (1u << (PIN_DIR + 16u));
     }
-    TIM_CCR1(TIM3_BASE) = mag * PWM_TOP / 32767u;
+    TIM_CCR1(PWM_TIM) = mag * PWM_TOP / 32767u;
 }
 
 uint8_t hal_uart_write(fw_hal_t *h, const uint8_t *data, size_t len)
@@ -209,28 +214,52 @@ static void pin_mode(uint32_t port, uint32_t pin, uint32_t mode, uint32_t af)
 {
     GPIO_MODER(port) = (GPIO_MODER(port) & ~(3u << (2u * pin))) | (mode << (2u * pin));
     if (mode == GPIO_MODE_AF) {
-        GPIO_AFRL(port) = (GPIO_AFRL(port) & ~(15u << (4u * pin))) | (af << (4u * pin));
+        if (pin < 8u) {
+            GPIO_AFRL(port) = (GPIO_AFRL(port) & ~(15u << (4u * pin))) | (af << (4u * pin));
+        } else {
+            GPIO_AFRH(port) = (GPIO_AFRH(port) & ~(15u << (4u * (pin - 8u)))) | (af << (4u * (pin - 8u)));
+        }
         GPIO_OSPEEDR(port) |= 2u << (2u * pin);
+    }
+}
+
+/* Called by the fault handler (startup.c) before it spins, in whatever state the board is: the PWM pin low at once,
+ * driven by the GPIO (the timer's main output off too), direction low. Touches only what is clocked. */
+void board_stop_drive(void)
+{
+    if (RCC_APB2ENR & RCC_APB2ENR_TIM1) {
+        TIM_BDTR(PWM_TIM) &= ~TIM_BDTR_MOE; /* the output to its idle level, low (OSSI, OIS1 = 0) */
+        TIM_CCR1(PWM_TIM) = 0u;
+    }
+    if (RCC_AHB1ENR & RCC_AHB1ENR_GPIOA) {
+        GPIO_BSRR(GPIOA_BASE) = (1u << (PIN_PWM + 16u)) | (1u << (PIN_DIR + 16u));
+        pin_mode(GPIOA_BASE, PIN_PWM, GPIO_MODE_OUT, 0u);
     }
 }
 
 static void peripherals(void)
 {
     RCC_AHB1ENR |= RCC_AHB1ENR_GPIOA | RCC_AHB1ENR_GPIOB;
-    RCC_APB1ENR |= RCC_APB1ENR_TIM2 | RCC_APB1ENR_TIM3 | RCC_APB1ENR_TIM5 | RCC_APB1ENR_USART2;
-    RCC_APB2ENR |= RCC_APB2ENR_ADC1;
+    RCC_APB1ENR |= RCC_APB1ENR_TIM2 | RCC_APB1ENR_TIM5 | RCC_APB1ENR_USART2;
+    RCC_APB2ENR |= RCC_APB2ENR_ADC1 | RCC_APB2ENR_TIM1;
+
+    /* a debugger halt: TIM1's output off (zero drive), the tick and the IWDG stopped (no overrun, no reset while
+     * stepping); the encoder counts on */
+    DBGMCU_APB1_FZ |= DBG_TIM5_STOP | DBG_IWDG_STOP;
+    DBGMCU_APB2_FZ |= DBG_TIM1_STOP;
 
     /* actuator first: direction low, PWM 0 */
     GPIO_BSRR(GPIOA_BASE) = 1u << (PIN_DIR + 16u);
     pin_mode(GPIOA_BASE, PIN_DIR, GPIO_MODE_OUT, 0u);
-    TIM_PSC(TIM3_BASE) = 0u;
-    TIM_ARR(TIM3_BASE) = PWM_TOP - 1u;
-    TIM_CCR1(TIM3_BASE) = 0u;
-    TIM_CCMR1(TIM3_BASE) = (6u << 4) | (1u << 3); /* OC1: PWM mode 1, preload */
-    TIM_CCER(TIM3_BASE) = 1u;                     /* CC1E */
-    TIM_EGR(TIM3_BASE) = TIM_EGR_UG;
-    TIM_CR1(TIM3_BASE) = TIM_CR1_ARPE | TIM_CR1_CEN;
-    pin_mode(GPIOA_BASE, 6u, GPIO_MODE_AF, 2u); /* PA6 = TIM3_CH1 */
+    TIM_PSC(PWM_TIM) = 0u;
+    TIM_ARR(PWM_TIM) = PWM_TOP - 1u;
+    TIM_CCR1(PWM_TIM) = 0u;
+    TIM_CCMR1(PWM_TIM) = (6u << 4) | (1u << 3); /* OC1: PWM mode 1, preload */
+    TIM_CCER(PWM_TIM) = 1u;                     /* CC1E */
+    TIM_BDTR(PWM_TIM) = TIM_BDTR_MOE | TIM_BDTR_OSSI; /* main output on; off (fault, halt) = driven to OIS1 = low */
+    TIM_EGR(PWM_TIM) = TIM_EGR_UG;
+    TIM_CR1(PWM_TIM) = TIM_CR1_ARPE | TIM_CR1_CEN;
+    pin_mode(GPIOA_BASE, PIN_PWM, GPIO_MODE_AF, 1u);
 
     /* encoder: TIM2 encoder mode 3 (both edges of both channels), input filter 8 samples */
     GPIO_PUPDR(GPIOA_BASE) |= (1u << 0) | (1u << 2); /* pull-ups on PA0, PA1 (open-collector encoders) */

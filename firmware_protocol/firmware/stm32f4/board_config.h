@@ -6,7 +6,7 @@
 #define BOARD_CONFIG_H
 
 #define BOARD_SYSCLK_HZ 84000000u  /* HSI 16 MHz -> PLL; APB1 42 MHz (timers 84 MHz), APB2 84 MHz */
-#define BOARD_TIMER_HZ 84000000u   /* TIM2/3/5 kernel clock */
+#define BOARD_TIMER_HZ 84000000u   /* TIM2/5 kernel clock (APB1 x 2) and TIM1's (APB2) */
 #define BOARD_UART_BAUD 1000000u   /* furuta-rt run --baud default */
 #define BOARD_PWM_HZ 20000u        /* motor driver PWM, above hearing */
 #define BOARD_DEFAULT_RATE_HZ 500u /* the thesis rig's loop; the host's CONFIG sets its own */

@@ -27,9 +27,9 @@
 #define RCC_AHB1ENR_GPIOA (1u << 0)
 #define RCC_AHB1ENR_GPIOB (1u << 1)
 #define RCC_APB1ENR_TIM2 (1u << 0)
-#define RCC_APB1ENR_TIM3 (1u << 1)
 #define RCC_APB1ENR_TIM5 (1u << 3)
 #define RCC_APB1ENR_USART2 (1u << 17)
+#define RCC_APB2ENR_TIM1 (1u << 0)
 #define RCC_APB2ENR_ADC1 (1u << 8)
 #define FLASH_ACR REG32(0x40023C00u)
 #define FLASH_ACR_2WS_CACHES (2u | (1u << 8) | (1u << 9) | (1u << 10)) /* latency 2, prefetch, I and D cache */
@@ -43,13 +43,14 @@
 #define GPIO_ODR(b) REG32((b) + 0x14u)
 #define GPIO_BSRR(b) REG32((b) + 0x18u)
 #define GPIO_AFRL(b) REG32((b) + 0x20u)
+#define GPIO_AFRH(b) REG32((b) + 0x24u)
 #define GPIO_MODE_OUT 1u
 #define GPIO_MODE_AF 2u
 #define GPIO_MODE_ANALOG 3u
 
-/* general-purpose timers TIM2 (32-bit), TIM3 (16-bit), TIM5 (32-bit) */
+/* timers: TIM1 (advanced, 16-bit, APB2), general-purpose TIM2 and TIM5 (32-bit) */
+#define TIM1_BASE 0x40010000u
 #define TIM2_BASE 0x40000000u
-#define TIM3_BASE 0x40000400u
 #define TIM5_BASE 0x40000C00u
 #define TIM_CR1(b) REG32((b) + 0x00u)
 #define TIM_SMCR(b) REG32((b) + 0x08u)
@@ -62,12 +63,15 @@
 #define TIM_PSC(b) REG32((b) + 0x28u)
 #define TIM_ARR(b) REG32((b) + 0x2Cu)
 #define TIM_CCR1(b) REG32((b) + 0x34u)
+#define TIM_BDTR(b) REG32((b) + 0x44u) /* TIM1 only */
 #define TIM_CR1_CEN (1u << 0)
 #define TIM_CR1_URS (1u << 2)
 #define TIM_CR1_ARPE (1u << 7)
 #define TIM_DIER_UIE (1u << 0)
 #define TIM_SR_UIF (1u << 0)
 #define TIM_EGR_UG (1u << 0)
+#define TIM_BDTR_OSSI (1u << 10)
+#define TIM_BDTR_MOE (1u << 15)
 
 /* ADC1 and the ADC common registers */
 #define ADC1_BASE 0x40012000u
@@ -115,6 +119,12 @@
 #define DWT_CTRL REG32(0xE0001000u)
 #define DWT_CYCCNT REG32(0xE0001004u)
 #define UID_BASE 0x1FFF7A10u
+/* what a debugger halt stops (RM0368 23.16): counters, the IWDG; TIM1's outputs go off as with MOE = 0 */
+#define DBGMCU_APB1_FZ REG32(0xE0042008u)
+#define DBGMCU_APB2_FZ REG32(0xE004200Cu)
+#define DBG_TIM5_STOP (1u << 3)
+#define DBG_IWDG_STOP (1u << 12)
+#define DBG_TIM1_STOP (1u << 0)
 
 #define IRQ_TIM2 28u
 #define IRQ_TIM3 29u

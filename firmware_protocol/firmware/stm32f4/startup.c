@@ -10,6 +10,7 @@ extern uint32_t _sidata, _sdata, _edata, _sbss, _ebss, _estack;
 int main(void);
 void Reset_Handler(void);
 void Default_Handler(void);
+void board_stop_drive(void);
 /* Handlers a board defines; where it does not, the default one. */
 void SysTick_Handler(void) __attribute__((weak, alias("Default_Handler")));
 void TIM5_IRQHandler(void) __attribute__((weak, alias("Default_Handler")));
@@ -24,10 +25,15 @@ void Reset_Handler(void)
     }
 }
 
-/* Any unexpected exception: stop here; the independent watchdog then resets the MCU, and a reset
- * leaves the actuator pins as inputs (the driver's pull-down gives zero drive). */
+/* What a board does first on an unexpected exception: take the drive off its actuator. A board without one (the
+ * qemu image, the bench) has nothing to do. */
+__attribute__((weak)) void board_stop_drive(void) {}
+
+/* Any unexpected exception (HardFault too): the actuator to zero, then stop here, where a debugger finds it; the
+ * independent watchdog then resets the MCU, and a reset leaves the actuator pins as inputs (zero drive). */
 void Default_Handler(void)
 {
+    board_stop_drive();
     for (;;) {
     }
 }
