@@ -20,6 +20,7 @@ from test_reliability_harness import (
     ROOT,
     DaemonProcess,
     MockProcess,
+    independent_mcap_counts,
     read_summary,
     start_daemon,
     traceback_free,
@@ -277,7 +278,7 @@ def _spawned_child(daemon: DaemonProcess) -> int | None:
     """pid of the daemon's logger (a multiprocessing 'spawn' child), once it exists."""
     for pid in daemon.children():
         try:
-            if b"multiprocessing" in Path(f"/proc/{pid}/cmdline").read_bytes():
+            if b"spawn_main" in Path(f"/proc/{pid}/cmdline").read_bytes():
                 return pid
         except OSError:
             continue
@@ -315,3 +316,59 @@ def test_the_loser_of_a_race_for_the_live_view_port_says_so_and_advertises_nothi
     errors = [line for line in daemon.stderr.splitlines() if "error" in line]
     assert len(errors) == 1 and f"--foxglove={port}" in errors[0] and "took the port" in errors[0], out
     assert not log.exists() or read_log(log).n_ticks == 0
+
+
+def test_a_logger_killed_mid_run_is_said_at_once_and_loses_nothing_it_wrote(tmp_path: Path) -> None:
+    """SIGKILL to the logger process alone while the run balances: the run says so at once and balances on; every
+    chunk written before the kill stays readable (ours and the independent JavaScript reader agree), up to the
+    flush period before it; the summary counts what the file holds and the run exits 3 (incomplete log)."""
+    log = tmp_path / "run.mcap"
+    daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "60", "--log", str(log),
+                            "--summary-json", str(tmp_path / "summary.json")])
+    try:
+        daemon.wait_for_line("→ balancing")
+        time.sleep(2.0)
+        logger = _spawned_child(daemon)
+        assert logger is not None
+        t_kill = time.time_ns()
+        os.kill(logger, signal.SIGKILL)
+        line = daemon.wait_for_line("logger process died", timeout=30)
+        assert daemon.proc.poll() is None, "the run went on"
+        time.sleep(1.0)
+        daemon.kill_group(signal.SIGINT)
+        rc = daemon.wait()
+    finally:
+        daemon.kill_group(signal.SIGKILL)
+    out = daemon.stderr + daemon.stdout
+    assert traceback_free(out), out
+    assert "SIGKILL" in line and str(log) in line
+    assert rc == 3, out
+    data = read_log(log)
+    assert data.recovered and data.n_ticks > 0
+    assert data.tick_log_time[-1] > t_kill - 1.6e9, "more than the flush period before the kill is missing"
+    assert independent_mcap_counts(log)["tick_records"] == data.n_ticks
+    summary = read_summary(tmp_path)
+    assert summary["log_ticks"] == data.n_ticks < summary["ticks"]
+
+
+def test_a_logger_killed_during_start_up_is_one_line_at_once(tmp_path: Path) -> None:
+    """The logger dies while it starts (its imports take seconds): one line naming it, exit 2, well before the
+    60 s start-up timeout, no device streaming."""
+    daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "5", "--log", str(tmp_path / "run.mcap")])
+    try:
+        end = time.monotonic() + TIMEOUT_S
+        while (logger := _spawned_child(daemon)) is None and daemon.proc.poll() is None and time.monotonic() < end:
+            time.sleep(0.001)
+        assert logger is not None, daemon.stderr
+        os.kill(logger, signal.SIGKILL)
+        t_kill = time.monotonic()
+        rc = daemon.wait(timeout=TIMEOUT_S)
+        took = time.monotonic() - t_kill
+    finally:
+        daemon.kill_group(signal.SIGKILL)
+    out = daemon.stderr + daemon.stdout
+    assert traceback_free(out), out
+    assert rc == 2, out
+    errors = [line for line in daemon.stderr.splitlines() if "error" in line]
+    assert len(errors) == 1 and "logger process died during start-up" in errors[0], out
+    assert "balancing" not in out and took < 30, (took, out)

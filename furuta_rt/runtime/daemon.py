@@ -28,9 +28,12 @@ import dataclasses
 import ipaddress
 import json
 import multiprocessing
+import multiprocessing.connection
 import os
+import signal
 import socket
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -161,6 +164,8 @@ class _Children:
         self.dash_q: Any = None
         self.dashboard: Any = None
         self.live_failed: Any = None
+        self.logger_death: str | None = None  # how the logger died during the run (None: it did not)
+        self._closing = False
 
     def spawn_logger(self, setup: LogSetup) -> None:
         """Start the logger process (returns at once; ``wait_logger`` waits for it to be ready)."""
@@ -188,6 +193,25 @@ class _Children:
             if time.monotonic() > end:
                 raise UserError(f"the logger process did not start within {CHILD_START_TIMEOUT_S:g} s (log {self._log_path})")
 
+    def watch_logger(self, say: Callable[[str], None]) -> None:
+        """From now on a logger that dies before it is told to close is said at once (a thread waiting on its
+        process sentinel: nothing in the loop), and the log is then judged incomplete."""
+        proc = self.logger
+        if proc is None:
+            return
+
+        def watch() -> None:
+            multiprocessing.connection.wait([proc.sentinel])
+            if self._closing:
+                return
+            proc.join(1.0)
+            self.logger_death = _death(proc.exitcode)
+            lost = [f"the log {self._log_path} ends at its last complete chunk"] if self._log_path else []
+            lost += ["the live view stops"] if self.live_failed is not None else []
+            say(f"error: the logger process died ({self.logger_death}); {' and '.join(lost)}; the loop goes on")
+
+        threading.Thread(target=watch, name="logger watch", daemon=True).start()
+
     def start_dashboard(self, info: Any) -> None:
         from furuta_rt.runtime.dashboard import dashboard_process
 
@@ -211,10 +235,12 @@ class _Children:
         """Send "close" and wait for the file to be finished; True if it was, complete."""
         if self.logger is None:
             return True
-        ok = True
+        self._closing = True
+        ok = self.logger.is_alive()  # a dead logger takes nothing more (its queue may be full: no 10 s wait)
         try:
-            self.log_q.put(("close", summary), timeout=10.0)
-        except Exception:  # full (a dead logger): judged below
+            if ok:
+                self.log_q.put(("close", summary), timeout=10.0)
+        except Exception:  # full (a stuck logger): judged below
             ok = False
         self.logger.join(30.0)
         if self.logger.is_alive():
@@ -224,6 +250,18 @@ class _Children:
         self.log_q.cancel_join_thread()  # batches a dead logger never took must not hang our exit
         self.logger = None
         return ok
+
+
+def _death(exitcode: int | None) -> str:
+    """How a child process ended, from its exit code (negative: the signal that killed it)."""
+    if exitcode is None:
+        return "it stopped answering"
+    if exitcode < 0:
+        try:
+            return f"killed by {signal.Signals(-exitcode).name}"
+        except ValueError:
+            return f"killed by signal {-exitcode}"
+    return f"exit code {exitcode}"
 
 
 def _start_mock(args: list[str]) -> tuple[Any, str]:
@@ -323,6 +361,7 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
         hw.open()
         warnings += hw.warnings
         children.wait_logger()
+        children.watch_logger(_say)
         if children.live_failed is not None and children.live_failed.is_set():  # lost the port to another program
             raise UserError(f"--foxglove={opts.foxglove_port}: the live view cannot listen on {opts.foxglove_host}:"
                             f"{opts.foxglove_port} ({children.live_failed.note}): another run or bridge took the port after "
@@ -413,7 +452,7 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
         summary = format_summary(result, rate_hz=rate, mode=opts.mode, rig=rig.name, log_path=opts.log_path,
                                  limits=_limits_text(opts, rate), log_ticks=log_ticks, log_incomplete=True,
                                  injected=mock_injections(opts.mock_args), **comp)
-    code = _outcome(result, log_ok, opts)
+    code = _outcome(result, log_ok, opts, children.logger_death)
     # the outcome first: an output that fails now (a closed terminal, a broken pipe, an unwritable
     # --summary-json) is one more line, never a different exit code for the run
     lost = _emit(lambda: print(summary, flush=True))
@@ -445,14 +484,14 @@ def _emit(write: Callable[[], None]) -> bool:
     return False
 
 
-def _outcome(result: Any, log_ok: bool, opts: RunOptions) -> int:
+def _outcome(result: Any, log_ok: bool, opts: RunOptions, logger_death: str | None = None) -> int:
     """The run's exit code, said on stderr: trip 1, incomplete log 3, never balanced 4 (not after an operator
     stop: stopping a run on purpose is not an error), else 0."""
     if result.end == "trip":
         return EXIT_TRIPPED
     if not log_ok:
-        _emit(lambda: _say(f"error: the log {opts.log_path} is incomplete: the logger could not finish it "
-                           f"(exit {EXIT_LOG_INCOMPLETE})"))
+        why = f"the logger process died during the run ({logger_death})" if logger_death else "the logger could not finish it"
+        _emit(lambda: _say(f"error: the log {opts.log_path} is incomplete: {why} (exit {EXIT_LOG_INCOMPLETE})"))
         return EXIT_LOG_INCOMPLETE
     if result.balancing_ticks > 0:
         return EXIT_OK
