@@ -1,6 +1,7 @@
 """The first physics of simple real-rig experiments: a free swing's loss (its envelope's shape, the energy fit) and
-period, read from recordings simulated with a seed and from the macstepien rig's real free decay; possible causes
-with a non-physical sign are never offered."""
+period, read from recordings simulated with a seed and from the macstepien rig's real free decay; an arm that rests
+at zero command while the pendulum pulls it (dry friction, not a dead band), also in a short 50 Hz file; possible
+causes with a non-physical sign are never offered."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from furuta_rt.diagnose import Options, diagnose
 from furuta_rt.diagnose.judgement import verdict
 from furuta_rt.diagnose.regression.library import PEND, Context
 from furuta_rt.diagnose.regression.states import prepare
-from furuta_rt.diagnose.stages import swing
+from furuta_rt.diagnose.stages import armlock, swing
 from furuta_rt.diagnose.stages.decay import free_decay
 from furuta_rt.io.mapping import load_mapping, read_mapped_csv
 from furuta_rt.model.effects import effects_from_assignments
@@ -41,6 +42,27 @@ def swing_recording(rig: RigConfig, effects: list[str], rate: float, amplitude: 
         cols[k] = (sim.t, m.theta, m.theta_dot, m.phi)
         sim.advance()
     return Recording(t=cols[:, 0], theta=cols[:, 1], theta_dot=cols[:, 2], phi=cols[:, 3], u=np.zeros(n))
+
+
+def driven_recording(rig: RigConfig, effects: list[str], rate: float, seconds: float, command, seed: int = 0) -> Recording:
+    """The rig from hanging at rest under the open-loop ``command(t)`` (volts), sampled at ``rate`` Hz."""
+    sim = Simulator(RigModel.from_config(rig, effects_from_assignments(effects)), rate, 5000.0, seed=seed,
+                    x0=(math.pi, 0.0, 0.0, 0.0))
+    n = round(seconds * rate)
+    cols = np.empty((n, 5))
+    for k in range(n):
+        m = sim.measure()
+        u = command(sim.t)
+        sim.set_command(u)
+        cols[k] = (sim.t, m.theta, m.theta_dot, m.phi, u)
+        sim.advance()
+    return Recording(t=cols[:, 0], theta=cols[:, 1], theta_dot=cols[:, 2], phi=cols[:, 3], u=cols[:, 4])
+
+
+def square_pulses(t: float, volts: float = 3.0) -> float:
+    """+V for 0.5 s, 0 V for 1 s, −V for 0.5 s, 0 V for 1 s (a home-built rig's open-loop test)."""
+    phase = t % 3.0
+    return volts if phase < 0.5 else -volts if 1.5 <= phase < 2.0 else 0.0
 
 
 def _read(rec: Recording, rig: RigConfig) -> tuple[swing.Swing, object]:
@@ -158,3 +180,47 @@ def test_no_cause_needs_a_negative_mass() -> None:
     for c in causes(1.4):
         assert c["key"] in verdict.FIXED_COLUMN_CAUSES or c["coefficient"] < 1.0, c
         assert "× config" not in c["value"] or float(c["value"].split("=")[1].split("×")[0]) > 0, c
+
+
+STICTION = ["arm_stiction.Fs=0.012", "arm_coulomb.Fc=0.008"]  # N m; the QUBE's motor gives 5 mN m per volt
+
+
+def test_a_short_50_hz_file_shows_the_arm_locking_at_zero_command(qube: RigConfig) -> None:
+    """Six seconds at 50 Hz of square pulses: after each pulse the arm stops and stays at one count while the
+    pendulum swings and pulls it. diagnose runs and reports dry friction holding at least a torque that lies below
+    the true breakaway (a lower bound: the pendulum's pull never reaches Fs) and is most of it."""
+    rec = driven_recording(qube, STICTION, 50.0, 6.0, square_pulses)
+    d = diagnose(rec, qube, FAST)
+    lock = d.to_json()["arm_rests"]
+    assert lock is not None and lock["verdict"] == "dry friction", lock
+    assert 0.5 * 0.012 < lock["held_at_zero_command"] < 1.1 * 0.012, lock
+    assert any("dry friction holding" in n for n in d.notes)
+
+
+def test_a_dead_band_without_friction_never_reads_as_dry_friction(qube: RigConfig) -> None:
+    """The same pulses on an arm with a 1 V dead band and viscous friction only: the arm never rests against the
+    pendulum's pull, so no dry friction is claimed."""
+    rec = driven_recording(qube, ["input_deadzone.width=1.0", "arm_viscous.Fv=2e-4"], 50.0, 6.0, square_pulses)
+    lock = armlock.assess(prepare(rec, qube), qube)
+    assert lock is None or lock.verdict != "dry friction", lock
+
+
+@pytest.mark.parametrize("effects", [["input_deadzone.width=1.0"], ["arm_stiction.Fs=0.006", "arm_coulomb.Fc=0.004"]])
+def test_slow_small_sines_leave_dead_band_and_friction_alike(qube: RigConfig, effects: list[str]) -> None:
+    """A slow 1.5 V sine: the arm stands still where |u| is small, by a dead band or by friction alike — said as a
+    look-alike with the experiments that separate them, whichever is true."""
+    rec = driven_recording(qube, effects, 50.0, 8.0, lambda t: 1.5 * math.sin(t))
+    lock = armlock.assess(prepare(rec, qube), qube)
+    assert lock is not None and lock.verdict == "look-alike", lock
+    assert 0.9 < lock.small_command <= 1.5
+    assert "look alike" in lock.text() and "zero command with the pendulum swinging" in lock.text()
+
+
+def test_a_named_dead_band_meets_the_rests_that_need_friction(qube: RigConfig) -> None:
+    """A dead band named while the rests at zero command show dry friction is declared as that friction's look-alike;
+    with dry friction named too, nothing is added."""
+    lock = armlock.assess(prepare(driven_recording(qube, STICTION, 50.0, 6.0, square_pulses), qube), qube)
+    entries = armlock.declare(lock, ["input_deadzone"], [], "a slow sweep")
+    assert len(entries) == 1 and entries[0]["effects"] == ["input_deadzone", "arm_stiction"]
+    assert "dead band may be that friction" in entries[0]["reason"]
+    assert armlock.declare(lock, ["input_deadzone", "arm_coulomb"], [], "a slow sweep") == []

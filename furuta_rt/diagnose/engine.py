@@ -37,7 +37,7 @@ from furuta_rt.diagnose.regression.fitting import Stats, fit, paired_t
 from furuta_rt.diagnose.regression.library import ARM, CANDIDATES, PEND, STICTION_STILL_TICKS, STILL_TICKS, Context
 from furuta_rt.diagnose.regression.selection import JOINT, EquationModel, Evaluation
 from furuta_rt.diagnose.regression.states import GaussianFilter, Prepared, prepare
-from furuta_rt.diagnose.stages import conventions, gate, latency, onset, peaks, stickslip, swing
+from furuta_rt.diagnose.stages import armlock, conventions, gate, latency, onset, peaks, stickslip, swing
 from furuta_rt.diagnose.stages.decay import DecayFit, DecayResult, free_decay
 from furuta_rt.diagnose.stages.findings import (
     LUGRE_CONTAINS,
@@ -108,6 +108,7 @@ class Diagnosis:
     summary: str = ""  # one line: the verdicts (furuta_rt.diagnose.judgement.verdict)
     identification: dict | None = None  # the arm's jointly calibrated parameters and identifiable combinations
     below_practical: list[dict] = field(default_factory=list)  # effects too small to matter (judgement.practical)
+    arm_lock: dict | None = None  # the arm's rests against a torque: dry friction or a dead band (stages.armlock)
 
     @property
     def names(self) -> list[str]:
@@ -137,6 +138,7 @@ class Diagnosis:
                 for e in self.effects
             ],
             "free_decay": self.decay,
+            "arm_rests": self.arm_lock,
             "stick_windows": self.stick.as_json() if self.stick is not None else None,
             "peak_windows": self.peak.as_json() if self.peak is not None else None,
             "arm_starts": self.starts.as_json() if self.starts is not None else None,
@@ -459,6 +461,11 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
     dropped = {e["name"] for e in [*gated.not_predictive, *below]}
     ambiguities = [a for a in ambiguities if a["effects"][0] not in dropped]
     lookalikes = [a for a in lookalikes if a.get("reported") not in dropped]  # no look-alike of a removed effect
+    lock = armlock.assess(prep, rig)  # the arm's rests: dry friction or a dead band (needs no regression rows)
+    if lock is not None:
+        notes += [lock.text(), *armlock.above_sliding(lock, {f.name: f.params for f in found})]
+        ambiguities += armlock.declare(lock, [f.name for f in found], list(ctx.known),
+                                       EXPERIMENTS[frozenset({"arm_coulomb", "input_deadzone"})])
     try:
         effects_of(found)
     except ValueError as err:  # e.g. a combination the effects vocabulary forbids
@@ -483,7 +490,7 @@ def diagnose(rec: Recording, rig: RigConfig, options: Options | None = None) -> 
         models=ems, prediction=prediction, decay=decay_json, decay_result=decay,
         stick=stick, peak=peak, starts=starts, not_predictive=gated.not_predictive, verdicts=verdicts,
         summary=verdict.summary(verdicts),
-        identification=ident, below_practical=below,
+        identification=ident, below_practical=below, arm_lock=lock.as_json() if lock is not None else None,
     )
 
 
