@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from furuta_rt.config import RigConfig, load_rig
@@ -18,6 +20,26 @@ COMPUTE_FILES = {
     "test_reproduction.py", "test_sensors_observer.py", "test_simulator.py", "test_swingup.py",
     "test_system_packages.py",
 }
+
+
+COMPUTE_NICE = 10
+"""Niceness of a compute test's process (and what it starts) when the process may take it back: CFS then gives a
+real-time test's processes that are not SCHED_FIFO (an in-process device thread, the logger, the pytest worker that
+paces a scripted device) about nine tenths of a core the other worker's computing would otherwise halve."""
+
+
+def _may_renice() -> bool:
+    """Lowering niceness again needs CAP_SYS_NICE (root): without it a worker that ran a compute test would stay
+    niced for the real-time tests it runs later, so nothing is reniced."""
+    return hasattr(os, "setpriority") and os.geteuid() == 0
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """Before the test's fixtures are made: a compute test runs niced, a real-time test at the normal priority."""
+    if _may_renice():
+        group = next((m.args[0] for m in item.iter_markers("xdist_group") if m.args), "realtime")
+        os.setpriority(os.PRIO_PROCESS, 0, 0 if group == "realtime" else COMPUTE_NICE)
 
 
 @pytest.hookimpl(tryfirst=True)
