@@ -347,3 +347,44 @@ def test_a_debugger_halt_takes_the_drive_off_and_holds_the_watchdog_and_the_tick
     after = _new_samples(mcu, dec)
     assert [s.seq for s in after] == [3, 4] and after[1].t_us - after[0].t_us == 2000
     assert not any(s.status & StatusFlags.TICK_OVERRUN for s in after)
+
+
+def test_theta_is_sampled_at_the_tick_and_phi_with_it(image: Path) -> None:
+    """θ and the encoder ramp with device time (θ: µs past the millisecond as a 12-bit code, φ: µs). The tick's
+    handler starts 30 µs late (a USART interrupt ahead of it) and decodes 300 µs of received bytes before fw_tick: θ
+    must still be the value at the timer's update (TIM5 TRGO triggers the conversion), and φ latched at the handler's
+    first instruction, not read inside fw_tick (a skew of 318 µs and more)."""
+    from hil_mock.board_model.mcu import Stm32f401
+
+    mcu = Stm32f401(image)
+    mcu.adc_code = lambda ch: 2048 + (mcu.clock.now_ns // 1000) % 1000 if ch == 4 else 2048
+    mcu.encoder = lambda: mcu.clock.now_ns // 1000
+    mcu.reset()
+    mcu.receive(b"\x00" + encode(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 1)))
+    mcu.stall("TIM5_IRQHandler", 30_000)
+    mcu.stall("fw_tick", 300_000)
+    dec, made = StreamDecoder(), []
+    for _ in range(4):
+        t = mcu.next_tick_ns()
+        mcu.advance_to(t)
+        made += [(t // 1000, s) for s in _new_samples(mcu, dec)]
+    assert len(made) == 4
+    for t_us, s in made:
+        assert s.theta_adc == t_us % 1000 == 0, f"θ sampled {s.theta_adc} µs after the tick"
+        assert 0 <= s.phi_count - t_us <= 30, f"φ read {s.phi_count - t_us} µs after the tick"
+
+
+def test_a_conversion_that_never_ends_is_a_fault_not_a_hang(image: Path) -> None:
+    """The ADC's trigger lost (no conversion at the update): the tick waits a bounded time for it, then reports the
+    rails, so ADC_OVERRANGE latches and the drive stays zero — the tick neither hangs nor sends a stale reading as
+    a fresh one."""
+    from hil_mock.board_model.device import bridge_duty
+
+    mcu = _driving(image, 16000)
+    assert bridge_duty(mcu) > 0.4
+    mcu.adc.trigger = lambda jextsel: None  # type: ignore[method-assign]
+    dec = StreamDecoder()
+    mcu.advance_to(mcu.next_tick_ns())
+    (s,) = _new_samples(mcu, dec)
+    assert s.status & StatusFlags.ADC_OVERRANGE and (s.theta_adc, s.theta_dot_adc) == (-2048, -2048)
+    assert bridge_duty(mcu, settled=True) == 0.0

@@ -55,6 +55,7 @@ SENTINEL = 0x1FFF0100  # handlers return here (LR): the model pops the exception
 PERIPH_BASE, PERIPH_SIZE = 0x40000000, 0x30000
 PPB_BASE, PPB_SIZE = 0xE0000000, 0x100000
 IRQ_COUNT = 86
+JEXTSEL_TIM5_TRGO = 11
 MAX_INSTRUCTIONS = 5_000_000  # per run of a handler: ~60 ms of CPU at 84 MHz, 100 worst ticks
 WFI = 0xBF30
 DBGMCU_IDCODE, DBGMCU_CR, DBGMCU_APB1_FZ, DBGMCU_APB2_FZ = 0xE0042000, 0xE0042004, 0xE0042008, 0xE004200C
@@ -123,6 +124,7 @@ class Stm32f401:
         self.tim5 = Timer("TIM5", 0x40000C00, 3, 32, self.clock, IRQ_TIM5, self.raise_irq)
         self.adc = Adc()
         self.adc.channel_code = lambda ch: self.adc_code(ch)
+        self.tim5.on_trgo = lambda: self.adc.trigger(JEXTSEL_TIM5_TRGO)
         self.tim2.encoder_count = lambda: self.encoder()
         self.usart = Usart(self.raise_irq, self.tx)
         self.iwdg = Iwdg(self.clock)

@@ -140,6 +140,7 @@ class Timer(Peripheral):
         self.arr_active = self.mask
         self.ccr1_active = 0
         self.encoder_count: Callable[[], int] | None = None
+        self.on_trgo: Callable[[], None] | None = None  # what the trigger output (TRGO) is wired to
 
     def counting(self) -> bool:
         return bool(self.regs[self.CR1] & 1) and not self.regs[self.SMCR] & 7
@@ -189,6 +190,11 @@ class Timer(Peripheral):
         self.regs[self.CNT] = 0
         self.arr_active = self.regs[self.ARR]
         self.ccr1_active = self.regs[self.CCR1]
+        mms = self.regs[0x04] >> 4 & 7  # CR2.MMS: 0 reset (UG is TRGO), 2 update (every update event is)
+        if self.on_trgo is not None and (mms == 2 or (mms == 0 and software)):
+            self.on_trgo()
+        elif mms not in (0, 2):
+            raise ModelError(f"board model: {self.name}_CR2 MMS = {mms}, a trigger output the model lacks")
         if software and self.regs[self.CR1] & (1 << 2):  # URS: only an overflow sets UIF / requests the interrupt
             return
         self.regs[self.SR] |= 1
@@ -225,7 +231,8 @@ class Timer(Peripheral):
 
 
 class Adc(Peripheral):
-    """ADC1 with its injected group: a JSWSTART converts the sequence (JSQ from JL) from ``sample()`` at once."""
+    """ADC1 with its injected group: a JSWSTART, or the external trigger JEXTSEL names (with JEXTEN set), converts the
+    sequence (JSQ from JL) from ``channel_code`` at that instant; JEOC at once (the 6.5 µs are not modelled)."""
 
     name = "ADC1"
     clock_bit = ("APB2ENR", 8)
@@ -244,9 +251,17 @@ class Adc(Peripheral):
         if off == self.CR2 and value & (1 << 22):
             if not value & 1:
                 raise ModelError("board model: ADC1 injected conversion started with ADON clear")
+            if value >> 20 & 3:
+                raise ModelError("board model: ADC1 JSWSTART with the injected external trigger enabled (JEXTEN)")
             self.convert_injected()
             value &= ~(1 << 22)
         super().write(off, value)
+
+    def trigger(self, jextsel: int) -> None:
+        """An edge of the injected trigger source number ``jextsel`` (RM0368: 11 = TIM5_TRGO)."""
+        cr2 = self.regs[self.CR2]
+        if cr2 >> 20 & 3 and cr2 >> 16 & 15 == jextsel and cr2 & 1:
+            self.convert_injected()
 
     def convert_injected(self) -> None:
         jsqr = self.regs[self.JSQR]

@@ -1,12 +1,13 @@
 /*
  * board.c - the firmware core on an STM32F401 (Black Pill / Nucleo-F401RE), register level.
  *
- *   TIM5 update IRQ  the device tick at rate_hz: start the θ/θ̇ conversions, feed the bytes USART2
- *                    received to the core, fw_tick (SAMPLE out, COMMAND applied), refresh the IWDG;
- *                    a period that elapsed during the tick is reported as an overrun (fw_skip)
+ *   TIM5 update IRQ  the device tick at rate_hz: latch φ, take θ/θ̇ (converted at the update event itself), feed
+ *                    the bytes USART2 received to the core, fw_tick (SAMPLE out, COMMAND applied), refresh the
+ *                    IWDG; a period that elapsed during the tick is reported as an overrun (fw_skip)
  *   USART2 IRQ       higher priority: received bytes into rx_ring, tx_ring out (1 Mbaud, 8N1)
  *   TIM2             quadrature encoder (PA0 = A, PA1 = B), 32-bit count
- *   ADC1 injected    θ on PA4 (IN4), θ̇ on PB0 (IN8), 12 bit, started by software at the tick
+ *   ADC1 injected    θ on PA4 (IN4), θ̇ on PB0 (IN8), 12 bit, triggered by TIM5's update (TRGO): sampled at the
+ *                    period's start whatever the software does, φ read at the handler's first instruction
  *   TIM1 CH1         PWM on PA8 at 20 kHz, direction on PA7; the advanced timer because its main output (MOE) goes
  *                    off — the pin driven low — when a fault handler clears it or a debugger halts the core
  *   IWDG             50 ms: a hung firmware resets, and reset leaves the PWM pin an input (zero drive)
@@ -30,12 +31,16 @@
 #define THETA_RAIL_MIN BOARD_ADC_MIN
 #define THETA_RAIL_MAX BOARD_ADC_MAX
 #endif
+#define ADC_WAIT_LOOPS 1000u /* > 60 µs; the two conversions take 6.5 µs from the update event */
 #define PIN_PWM 8u                              /* PA8 = TIM1_CH1 (AF1) */
 #define PIN_DIR 7u                              /* PA7 */
 #define PWM_TIM TIM1_BASE
 
 struct fw_hal {
     ring_t rx, tx;
+    int32_t phi;                /* latched at the top of the tick */
+    int16_t theta, theta_dot;   /* converted at the tick's update event */
+    uint32_t adc_missed;        /* ticks whose conversion never ended (a rail reported instead) */
     uint32_t rx_overflows;
     uint32_t tick_cycles_max; /* worst tick in CPU cycles (DWT), for a debugger: FIRMWARE.md */
 };
@@ -72,11 +77,7 @@ int main(void);
 
 /* ---- HAL ------------------------------------------------------------------------------------ */
 
-int32_t hal_encoder_count(fw_hal_t *h)
-{
-    (void)h;
-    return (int32_t)TIM_CNT(TIM2_BASE);
-}
+int32_t hal_encoder_count(fw_hal_t *h) { return h->phi; }
 
 uint8_t hal_encoder_fault(fw_hal_t *h)
 {
@@ -86,18 +87,26 @@ uint8_t hal_encoder_fault(fw_hal_t *h)
 
 static int16_t adc_counts(uint32_t dr) { return (int16_t)((int32_t)(dr & 0xFFFu) - 2048); }
 
-int16_t hal_adc_theta(fw_hal_t *h)
-{
-    (void)h;
-    while (!(ADC1_SR & ADC_SR_JEOC)) { /* started at the top of the tick: ~6 µs for both */
-    }
-    return adc_counts(ADC1_JDR1);
-}
+int16_t hal_adc_theta(fw_hal_t *h) { return h->theta; }
 
-int16_t hal_adc_theta_dot(fw_hal_t *h)
+int16_t hal_adc_theta_dot(fw_hal_t *h) { return h->theta_dot; }
+
+/* The injected conversions TIM5's update started (6.5 µs for both): read once they end. A conversion that never
+ * ends (the trigger lost) reports the rails, so the core latches ADC_OVERRANGE (θ̇ has a rail) and drives zero. */
+static void latch_adc(fw_hal_t *h)
 {
-    (void)h;
-    return adc_counts(ADC1_JDR2);
+    uint32_t n = 0u;
+    while (!(ADC1_SR & ADC_SR_JEOC)) {
+        if (++n > ADC_WAIT_LOOPS) {
+            h->theta = BOARD_ADC_MIN;
+            h->theta_dot = BOARD_ADC_MIN;
+            h->adc_missed++;
+            return;
+        }
+    }
+    ADC1_SR = ~(ADC_SR_JEOC | ADC_SR_JSTRT);
+    h->theta = adc_counts(ADC1_JDR1);
+    h->theta_dot = adc_counts(ADC1_JDR2);
 }
 
 void hal_actuator_write(fw_hal_t *h, int16_t counts)
@@ -153,9 +162,9 @@ void TIM5_IRQHandler(void)
     uint32_t t0 = DWT_CYCCNT;
     uint32_t cycles;
     int byte;
+    hal.phi = (int32_t)TIM_CNT(TIM2_BASE); /* first: θ and θ̇ were sampled at the update event */
     TIM_SR(TIM5_BASE) = ~TIM_SR_UIF;
-    ADC1_SR = 0u;
-    ADC1_CR2 |= ADC_CR2_JSWSTART; /* θ and θ̇ convert while the received bytes are decoded */
+    latch_adc(&hal); /* before the received bytes: a CONFIG's UG triggers another conversion */
     while ((byte = ring_get(&hal.rx)) >= 0) {
         fw_rx_byte(&fw, (uint8_t)byte);
     }
@@ -277,7 +286,7 @@ static void peripherals(void)
     ADC1_SMPR2 = (3u << (3u * 4u)) | (3u << (3u * 8u));
     ADC1_CR1 = ADC_CR1_SCAN;
     ADC1_JSQR = (1u << 20) | (4u << 10) | (8u << 15); /* JL = 1 (two), JSQ3 = 4, JSQ4 = 8 */
-    ADC1_CR2 = ADC_CR2_ADON;
+    ADC1_CR2 = ADC_CR2_ADON | ADC_CR2_JEXTEN_RISING | ADC_CR2_JEXTSEL_TIM5_TRGO; /* converts at each tick's start */
 
     /* USART2 on PA2 (TX) / PA3 (RX): the Nucleo's ST-LINK virtual COM port */
     pin_mode(GPIOA_BASE, 2u, GPIO_MODE_AF, 7u);
@@ -288,6 +297,7 @@ static void peripherals(void)
     /* the tick: TIM5 update at the default rate (fw_init calls hal_tick_rate) */
     TIM_PSC(TIM5_BASE) = 0u;
     TIM_CR1(TIM5_BASE) = TIM_CR1_ARPE | TIM_CR1_URS;
+    TIM_CR2(TIM5_BASE) = TIM_CR2_MMS_UPDATE; /* the update event is TRGO: the ADC's trigger */
     TIM_DIER(TIM5_BASE) = TIM_DIER_UIE;
     NVIC_IPR8(IRQ_USART2) = 0x40u; /* bytes must not wait for a tick */
     NVIC_IPR8(IRQ_TIM5) = 0x80u;

@@ -53,6 +53,7 @@
 #define TIM2_BASE 0x40000000u
 #define TIM5_BASE 0x40000C00u
 #define TIM_CR1(b) REG32((b) + 0x00u)
+#define TIM_CR2(b) REG32((b) + 0x04u)
 #define TIM_SMCR(b) REG32((b) + 0x08u)
 #define TIM_DIER(b) REG32((b) + 0x0Cu)
 #define TIM_SR(b) REG32((b) + 0x10u)
@@ -70,6 +71,7 @@
 #define TIM_DIER_UIE (1u << 0)
 #define TIM_SR_UIF (1u << 0)
 #define TIM_EGR_UG (1u << 0)
+#define TIM_CR2_MMS_UPDATE (2u << 4)
 #define TIM_BDTR_OSSI (1u << 10)
 #define TIM_BDTR_MOE (1u << 15)
 
@@ -84,9 +86,12 @@
 #define ADC1_JDR2 REG32(ADC1_BASE + 0x40u)
 #define ADC_CCR REG32(0x40012304u)
 #define ADC_SR_JEOC (1u << 2)
+#define ADC_SR_JSTRT (1u << 3)
 #define ADC_CR1_SCAN (1u << 8)
 #define ADC_CR2_ADON (1u << 0)
 #define ADC_CR2_JSWSTART (1u << 22)
+#define ADC_CR2_JEXTEN_RISING (1u << 20)
+#define ADC_CR2_JEXTSEL_TIM5_TRGO (11u << 16)
 
 /* USART2 */
 #define USART2_BASE 0x40004400u
