@@ -1,6 +1,7 @@
 """Designed experiments, the design: a report's look-alike pair as two simulator models, candidate excitations
-scored by the expected paired t between them (predicted closed loop through the one Controller.update), limits
-checked on the whole plan under both, and `furuta-rt experiment design` as a user runs it."""
+scored by diagnose's own test statistic on recordings of them simulated (closed loop through the one
+Controller.update, with the rig's sensor noise) under each alternative, limits checked on the whole plan under both,
+and `furuta-rt experiment design` as a user runs it."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 from furuta_rt.cli import main
 from furuta_rt.config import load_rig
 from furuta_rt.errors import UserError
-from furuta_rt.experiment.design import alternatives_from_report, design, score
+from furuta_rt.experiment.design import alternatives_from_report, calibrated_score, design, score
 from furuta_rt.experiment.plan import Plan, Segment, load_plan
 
 # gain 0.8 on the command ↔ the arm inertia that gives the same β/gain at the thesis rig (β 0.0517 / 0.8: J 0.05 →
@@ -45,22 +46,37 @@ def test_excitation_separates_what_balancing_alone_cannot() -> None:
     assert max(passive) < 0.5 and min(sweep) > 5.0, (passive, sweep)
 
 
+def test_calibrated_score_is_diagnoses_kappa_test() -> None:
+    """The score of gain ↔ inertia is κ's z, the statistic diagnose decides this pair by: 0 when the arm does not move
+    (no arm rows: nothing to fit), below its threshold for a slow sweep (the pendulum hardly reacts) and above it
+    for a fast one (its reversals swing the pendulum: the reaction κ scales is there to see)."""
+    rig = load_rig("thesis")
+    alt = alternatives_from_report(REPORT)
+    hold = calibrated_score(rig, alt, Plan((Segment("hold", 4.0),), settle_s=0.5))
+    assert [r["decisive"] for r in hold] == [0.0, 0.0] and hold[0]["test"] == "κ z" and hold[0]["threshold"] == 4.0
+    slow = calibrated_score(rig, alt, Plan((Segment("sweep", 8.0, {"amplitude": 0.5, "speed": 0.1}),), settle_s=1.0))
+    fast = calibrated_score(rig, alt, Plan((Segment("sweep", 8.0, {"amplitude": 0.5, "speed": 1.2}),), settle_s=1.0))
+    assert max(r["decisive"] for r in slow) < 4.0 < max(r["decisive"] for r in fast), (slow, fast)
+    assert min(r["decisive"] for r in fast) > 2 * max(r["decisive"] for r in slow)
+    for r in fast:  # κ near 0 under the truth, the rival's prediction 1 − g (gain true) or 1 − 1/g (inertia true)
+        assert abs(r["kappa"]) < 4 * r["se"] and r["kappa_z"] == r["decisive"]
+
+
 def test_design_picks_the_best_candidate_within_limits_and_refuses_beyond() -> None:
     rig = load_rig("thesis")
     alt = alternatives_from_report(REPORT)
-    family = [Plan((Segment("hold", 3.0),), settle_s=0.2),
-              Plan((Segment("sweep", 3.0, {"amplitude": 0.2, "speed": 0.4}),), settle_s=0.2),
-              Plan((Segment("sweep", 3.0, {"amplitude": 0.5, "speed": 1.2}),), settle_s=0.2)]
-    best, ranked = design(rig, alt, 3.0, eval_s=1.5, plans=family)
-    assert ranked[-1][0] is family[0]  # doing nothing ranks last
-    assert best.separation == ranked[0][1] and best.separation > 3.0
+    family = [Plan((Segment("hold", 4.0),), settle_s=0.5),
+              Plan((Segment("sweep", 4.0, {"amplitude": 0.5, "speed": 1.0}),), settle_s=0.5)]
+    best, ranked = design(rig, alt, 4.0, eval_s=4.0, plans=family)
+    assert ranked[-1][0] is family[0] and ranked[-1][1] == 0.0  # doing nothing ranks last: nothing to fit
+    assert best.plan is family[1] and best.separation == ranked[0][1] > 0 and best.test == "κ z"
     assert best.peak_phi < rig.safety.phi_limit and best.peak_theta < rig.safety.theta_limit
     assert best.peak_u < rig.actuator.limit
-    # a |φ| limit below the sweeps' travel: every exciting plan is refused, doing nothing is not worth writing
-    best_tight, _ = design(rig, alt, 3.0, eval_s=1.5, plans=family, limits=(0.1, 0.5, 2.0))
-    assert best_tight.plan is family[0] and best_tight.separation < 0.5
+    # a |φ| limit below the sweep's travel: it is refused, doing nothing is all that is left (and separates nothing)
+    best_tight, _ = design(rig, alt, 4.0, eval_s=4.0, plans=family, limits=(0.1, 0.5, 2.0))
+    assert best_tight.plan is family[0] and best_tight.separation == 0.0
     with pytest.raises(UserError, match="exceed"):
-        design(rig, alt, 3.0, eval_s=1.5, plans=family[1:], limits=(0.1, 0.5, 2.0))
+        design(rig, alt, 4.0, eval_s=4.0, plans=family[1:], limits=(0.1, 0.5, 2.0))
 
 
 def test_cli_never_overwrites_a_plan_and_writes_a_loadable_one(tmp_path: Path, capsys: pytest.CaptureFixture,
@@ -80,6 +96,6 @@ def test_cli_never_overwrites_a_plan_and_writes_a_loadable_one(tmp_path: Path, c
     out = capsys.readouterr().out
     written = load_plan(plan)
     assert written.segments == family[0].segments and "arm_inertia from input_gain" in written.note
-    for needle in ("look-alike: arm_inertia ↔ input_gain (paired t 0.9", "expected separation: paired t",
+    for needle in ("look-alike: arm_inertia ↔ input_gain (paired t 0.9", "expected separation: κ z",
                    "worst under either: |φ|", "--experiment"):
         assert needle in out, out

@@ -25,7 +25,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "them, and show the fit improve. Without --config the rig in the log, else the thesis rig (Bessel θ path at "
         "50 rad/s), is assumed.",
     )
-    p.add_argument("recording", metavar="RECORDING")
+    p.add_argument("recording", metavar="RECORDING", nargs="+",
+                   help="a recording; several recordings of one rig (e.g. a run and its designed experiment, "
+                   "`furuta-rt experiment design`) are fitted jointly: shared physical parameters, and whether the "
+                   "look-alikes a recording alone left unresolved are told apart together")
     p.add_argument("--config", metavar="RIG.toml", default=None,
                    help=f"rig TOML file or a shipped rig ({', '.join(SHIPPED_RIGS)})")
     p.add_argument("--mapping", metavar="NAME|FILE", default=None,
@@ -143,6 +146,9 @@ def run(args: argparse.Namespace) -> int:
     from furuta_rt.diagnose import Options, diagnose
     from furuta_rt.diagnose.report.render import OUTPUTS, check_directory, text, write_report
 
+    if len(args.recording) > 1:
+        return run_joint(args)
+    args.recording = args.recording[0]
     # every output claimed before the diagnosis: a user's files are never overwritten, and a refusal comes first
     claim_outputs([("--json", None if args.json == "-" else args.json)], force=args.force, inputs=[args.recording])
     if args.report:
@@ -157,18 +163,7 @@ def run(args: argparse.Namespace) -> int:
     if args.theta_filter is not None:
         rig = with_theta_filter(rig, args.theta_filter)
     d = diagnose(rec, rig, Options(closed_loop=not args.no_closed_loop, check_conventions=not args.skip_convention_check))
-    out = d.to_json()
-    if args.json == "-":
-        print(json.dumps(out, default=float))
-    else:
-        con = Console(soft_wrap=True, highlight=False)
-        for line in text(d):
-            con.print(line, markup=False)
-        if args.json:
-            try:
-                write_text(args.json, json.dumps(out, indent=1, default=float) + "\n", overwrite=args.force, flag="--json")
-            except OSError as err:
-                raise UserError(f"cannot write {args.json}: {err.strerror}") from None
+    _print_and_write(args, d.to_json(), text(d))
     if args.report:
         try:
             with directory_when_done(args.report, OUTPUTS, overwrite=args.force, flag="--report") as tmp:
@@ -178,3 +173,43 @@ def run(args: argparse.Namespace) -> int:
         if args.json != "-":
             Console().print(f"report: {Path(args.report) / 'report.html'}", markup=False)
     return 0
+
+
+def run_joint(args: argparse.Namespace) -> int:
+    """Several recordings of one rig fitted jointly (furuta_rt.diagnose.joint)."""
+    from furuta_rt.diagnose import Options
+    from furuta_rt.diagnose.joint import diagnose_joint, text
+
+    if args.report:
+        raise UserError("--report writes the page of one recording; with several, use --json (or diagnose each alone)")
+    if len(set(map(str, map(Path, args.recording)))) < len(args.recording):
+        raise UserError("a recording is given twice; a joint fit needs distinct recordings")
+    claim_outputs([("--json", None if args.json == "-" else args.json)], force=args.force, inputs=args.recording)
+    loaded = [load(path, args.config, args.mapping, args.map) for path in args.recording]
+    rig = loaded[0][1]
+    if args.config is None:  # each log carries its rig: one rig is what a joint fit means
+        for path, (_, other) in zip(args.recording[1:], loaded[1:], strict=True):
+            if other.model_dump() != rig.model_dump():
+                raise UserError(f"{path} was recorded on another rig than {args.recording[0]} ({other.name} against "
+                                f"{rig.name}); give --config to diagnose both against one rig")
+    if args.theta_filter is not None:
+        rig = with_theta_filter(rig, args.theta_filter)
+    opts = Options(closed_loop=not args.no_closed_loop, check_conventions=not args.skip_convention_check)
+    j = diagnose_joint([(path, rec) for path, (rec, _) in zip(args.recording, loaded, strict=True)], rig, opts)
+    _print_and_write(args, j.to_json(), text(j))
+    return 0
+
+
+def _print_and_write(args: argparse.Namespace, out: dict, lines: list[str]) -> None:
+    """The JSON on stdout (--json -), else the text, and the JSON into --json's file."""
+    if args.json == "-":
+        print(json.dumps(out, default=float))
+        return
+    con = Console(soft_wrap=True, highlight=False)
+    for line in lines:
+        con.print(line, markup=False)
+    if args.json:
+        try:
+            write_text(args.json, json.dumps(out, indent=1, default=float) + "\n", overwrite=args.force, flag="--json")
+        except OSError as err:
+            raise UserError(f"cannot write {args.json}: {err.strerror}") from None

@@ -4,7 +4,8 @@
     furuta-rt experiment design report.json -o plan.toml           searches the excitation that separates them
     furuta-rt run --port /dev/ttyACM0 --experiment plan.toml --log exp.mcap
 
-It prints what the plan does, how long it runs, the expected paired t between the two alternatives and the worst
+It prints what the plan does, how long it runs, the expected separation (diagnose's own test statistic on
+simulated recordings of the plan) and the worst
 |φ|, |θ|, |u| predicted under either; a plan beyond the rig's limits is refused; an existing plan file is replaced
 only with --force.
 """
@@ -85,20 +86,23 @@ def run_design(args: argparse.Namespace) -> int:
 
     best, _ = design(rig, alt, args.budget, limits=limits, progress=progress)
     plan = best.plan
-    note = f"separates {alt.named} from {alt.rival}: expected paired t {best.separation:.1f}"
+    note = f"separates {alt.named} from {alt.rival}: expected {best.test} {best.separation:.1f}"
     plan = type(plan)(plan.segments, plan.mode, plan.settle_s, plan.return_speed, note)
     write_text(args.output, plan.to_toml(), overwrite=args.force, flag="-o")
     total = plan.settle_s + plan.duration
     print(f"plan {args.output}: {total:.1f} s while balancing (settle {plan.settle_s:g} s, then):")
     for line in plan.describe():
         print(f"  {line}")
-    print(f"expected separation: paired t {best.separation:.1f} ({alt.named} true: {best.separation_ab[0]:.1f}, "
-          f"{alt.rival} true: {best.separation_ab[1]:.1f}; ≥ 3 tells them apart)")
+    print(f"expected separation: {best.test} {best.separation:.1f} ({alt.named} true: {best.separation_ab[0]:.1f}, "
+          f"{alt.rival} true: {best.separation_ab[1]:.1f}; diagnose's own test on simulated recordings of the plan, "
+          f"≥ {best.threshold:g} tells them apart)")
     print(f"worst under either: |φ| {best.peak_phi:.3f} rad (limit {limits[0]:g}), |θ| {best.peak_theta:.4f} rad "
           f"(limit {limits[1]:g}), |u| {best.peak_u:.3f} (limit {limits[2]:g})")
-    if best.separation < 3.0:
-        need = args.budget * (3.0 / max(best.separation, 1e-3)) ** 2
-        print(f"warning: expected paired t {best.separation:.1f} is below 3: this plan is not expected to tell them "
+    if best.separation < best.threshold:
+        need = args.budget * (best.threshold / max(best.separation, 1e-3)) ** 2
+        print(f"warning: expected {best.test} {best.separation:.1f} is below {best.threshold:g}: this plan is not "
+              f"expected to tell them "
               f"apart; a budget of about {need:.0f} s (t grows as the square root of the length) or looser limits")
-    print(f"next: furuta-rt run --port DEV --experiment {args.output} --log experiment.mcap")
+    print(f"next: furuta-rt run --port DEV --experiment {args.output} --log experiment.mcap, then "
+          "furuta-rt diagnose RUN.mcap experiment.mcap (the joint fit of both)")
     return 0

@@ -5,17 +5,14 @@ alternative (B) that fits almost as well (its "ambiguities": the alternative's e
 physics the simulator runs (furuta_rt.sim.closed_loop with furuta_rt.model.effects), so each candidate excitation is
 predicted under A and under B, closed loop, through the same ``Controller.update`` the rig runs.
 
-The expected separation of a candidate: with A the truth, B refitted to A's prediction (its parameters moved by one
-Gauss–Newton step on a finite-difference sensitivity, as diagnose would refit them on the new data), the residual
-r = y_A − y_B* of the measured outputs y = (φ/σ_φ, θ/σ_θ), whitened by the sensor noise (encoder quantisation q/√12,
-the rig's θ noise). Comparing the two fits block by block on white noise, the expected paired t is ‖r‖/2 (the
-difference of the two squared errors has mean ‖r‖² and standard deviation 2‖r‖). The smaller of the two directions
-(A true, B true) is the candidate's score: a plan must separate the pair whichever is right.
-
-The score compares predicted trajectories. diagnose compares equation errors, which can be far less sensitive: for
-input gain ↔ arm inertia only the pendulum's reaction on the arm (γ θ̈ in eq. 4's arm equation, scaled by a gain,
-not by an inertia) separates them, and a trajectory difference the refit of one parameter does not absorb is not
-necessarily one diagnose sees. The expected t is therefore an upper bound, not yet calibrated against diagnose.
+The expected separation of a candidate is diagnose's own test statistic on simulated recordings of it: with A the
+truth, the plan is simulated with the rig's sensor noise (seeded) and the pair judged on it by the code diagnose
+judges it with (furuta_rt.diagnose.joint.pair_test: the paired t of the held-out block errors of B against A, and for
+gain ↔ inertia the κ test's z, the standard errors by which κ rejects the rival's prediction); then with B the truth.
+The smaller of the two directions is the candidate's score: a plan must separate the pair whichever is right. A
+trajectory difference (``score``: the noise-whitened output residual after refitting the rival) is an upper bound
+only: for input gain ↔ arm inertia only the pendulum's reaction on the arm (γ θ̈ in eq. 4's arm equation, scaled by
+a gain, not by an inertia) separates them, and the trajectories differ by far more than that term.
 
 Candidates are scored on ``eval_s`` seconds and the score scaled by √(budget/eval_s) (a stationary excitation gains
 as the square root of its length); the chosen plan is then simulated whole under both alternatives for the worst
@@ -52,8 +49,10 @@ class Alternatives:
 @dataclass(frozen=True)
 class Prediction:
     plan: Plan
-    separation: float  # expected paired t (the smaller direction)
+    separation: float  # expected decisive statistic (the smaller direction): diagnose's paired t, or κ's z
     separation_ab: tuple[float, float]  # (A true, B true)
+    test: str  # which statistic ("paired t" or "κ z")
+    threshold: float  # the value at which diagnose tells the pair apart
     peak_phi: float
     peak_theta: float
     peak_u: float
@@ -101,7 +100,7 @@ def candidate_plans(rig: RigConfig, budget_s: float, settle_s: float = 1.0) -> l
         plans.append(Plan(tuple(segments), settle_s=settle_s))
 
     for amp in (0.2, 0.5):
-        for speed in (0.1, 0.4, 1.2):
+        for speed in (0.1, 0.4, 0.8, 1.2):
             add(Segment("sweep", budget_s, {"amplitude": amp, "speed": speed}))
         n = 6
         add(*(Segment("step", budget_s / n, {"phi": amp if i % 2 == 0 else -amp}) for i in range(n)))
@@ -173,6 +172,41 @@ def score(rig: RigConfig, alt: Alternatives, plan: Plan, seed: int = 0) -> tuple
     return t_ab, t_ba
 
 
+def _recording(rig: RigConfig, effects: dict[str, dict[str, float]], plan: Plan, seed: int) -> Any:
+    """The plan under ``effects`` with the rig's sensor noise (seeded): what the rig would record, settling included."""
+    from furuta_rt.sim.closed_loop import run_closed_loop
+
+    exc = Excitation(plan, rig.control.rate_hz)
+    return run_closed_loop(rig, exc.ticks / rig.control.rate_hz, effects=Effects.model_validate(effects),
+                           excitation=exc, seed=seed, substep_hz=SUBSTEP_HZ, x0=(0.0, 0.0, 0.0, 0.0))
+
+
+def diagnose_test(rig: RigConfig, rec: Any, truth: str, rival: str, shared: dict[str, dict[str, float]]) -> dict:
+    """diagnose's look-alike statistics for ``truth`` against ``rival`` on recording ``rec`` (joint.pair_test on the
+    truth's equation, with ``shared``, the effects both alternatives have, in the base model)."""
+    from furuta_rt.diagnose.joint import context, pair_test
+    from furuta_rt.diagnose.regression.library import CANDIDATES
+    from furuta_rt.diagnose.regression.selection import EquationModel
+    from furuta_rt.diagnose.stages.findings import Options
+
+    opts = Options()
+    eq = CANDIDATES[truth].equation
+    em = EquationModel(context(rec, rig, opts, []), eq, opts.thresholds)
+    base = em.spec0()
+    for name in shared:
+        if name in CANDIDATES and CANDIDATES[name].equation == eq and em.can_add(base, name):
+            base = base.with_effect(name)
+    return pair_test(em, truth, rival, base)
+
+
+def calibrated_score(rig: RigConfig, alt: Alternatives, plan: Plan, seed: int = 0) -> tuple[dict, dict]:
+    """diagnose_test on the plan simulated with A the truth, then B (noisy, seeded)."""
+    shared = {k: v for k, v in alt.a.items() if k in alt.b and k not in (alt.named, alt.rival)}
+    ra = diagnose_test(rig, _recording(rig, alt.a, plan, seed), alt.named, alt.rival, shared)
+    rb = diagnose_test(rig, _recording(rig, alt.b, plan, seed + 1), alt.rival, alt.named, shared)
+    return ra, rb
+
+
 def peaks(rig: RigConfig, alt: Alternatives, plan: Plan, seed: int = 0) -> tuple[float, float, float]:
     """Worst |φ|, |θ|, |u| of the whole plan under either alternative (settling and the return included)."""
     out = [0.0, 0.0, 0.0]
@@ -183,27 +217,31 @@ def peaks(rig: RigConfig, alt: Alternatives, plan: Plan, seed: int = 0) -> tuple
     return out[0], out[1], out[2]
 
 
-def design(rig: RigConfig, alt: Alternatives, budget_s: float, *, eval_s: float = 6.0,
+def design(rig: RigConfig, alt: Alternatives, budget_s: float, *, eval_s: float = 8.0,
            limits: tuple[float, float, float] | None = None, plans: list[Plan] | None = None,
-           progress: Any = None) -> tuple[Prediction, list[tuple[Plan, float]]]:
-    """The candidate with the largest expected paired t that keeps within ``limits`` (|φ|, |θ|, |u|; default the
-    rig's); all candidates' scores, best first. Raises UserError if no candidate keeps within the limits."""
+           progress: Any = None, seed: int = 0) -> tuple[Prediction, list[tuple[Plan, float]]]:
+    """The candidate with the largest expected decisive statistic (calibrated_score on its first ``eval_s`` seconds,
+    scaled by √(budget/eval_s): both statistics grow as the square root of the rows) that keeps within ``limits``
+    (|φ|, |θ|, |u|; default the rig's); all candidates' scores, best first. Raises UserError if no candidate keeps
+    within the limits."""
     phi_lim, theta_lim, u_lim = limits or (rig.safety.phi_limit, rig.safety.theta_limit, rig.actuator.limit)
     family = plans if plans is not None else candidate_plans(rig, budget_s)
-    scored: list[tuple[Plan, float, tuple[float, float]]] = []
+    scored: list[tuple[Plan, float, tuple[float, float], dict]] = []
     for i, plan in enumerate(family):
         short = _shortened(plan, eval_s)
-        ab = score(rig, alt, short)
+        ra, rb = calibrated_score(rig, alt, short, seed)
         grow = math.sqrt(sum(s.duration for s in plan.segments) / sum(s.duration for s in short.segments))
-        scored.append((plan, min(ab) * grow, (ab[0] * grow, ab[1] * grow)))
+        ab = (max(ra["decisive"], 0.0) * grow, max(rb["decisive"], 0.0) * grow)
+        scored.append((plan, min(ab), ab, ra))
         if progress is not None:
-            progress(i + 1, len(family), plan, min(ab) * grow)
+            progress(i + 1, len(family), plan, min(ab))
     scored.sort(key=lambda x: -x[1])
     refused = []
-    for plan, sep, ab in scored:
+    for plan, sep, ab, ra in scored:
         phi, theta, u = peaks(rig, alt, plan)
         if phi < phi_lim and theta < theta_lim and u < u_lim:
-            return Prediction(plan, sep, ab, phi, theta, u), [(p, s) for p, s, _ in scored]
+            return (Prediction(plan, sep, ab, ra["test"], ra["threshold"], phi, theta, u),
+                    [(p, s) for p, s, _, _ in scored])
         refused.append(f"{plan.segments[0].describe()}: |φ| {phi:.3g}, |θ| {theta:.3g}, |u| {u:.3g}")
         if len(refused) >= 3:
             break
