@@ -43,8 +43,9 @@ def image() -> Path:
 
 
 def test_the_image_boots_on_the_register_model(image: Path) -> None:
-    """Reset to the idle wfi: 84 MHz from the PLL, TIM5 ticking at 500 Hz with its interrupt, the IWDG at 50 ms,
-    TIM2 in encoder mode, TIM1 at 20 kHz with zero duty and its main output on, DIR an output driven low."""
+    """Reset to the idle wfi: 84 MHz from the PLL fed by the Nucleo's 8 MHz external clock (HSE bypass), TIM5
+    ticking at 500 Hz with its interrupt, the IWDG at 50 ms, TIM2 in encoder mode, TIM1 at 20 kHz with zero duty and
+    its main output on, DIR an output driven low."""
     from hil_mock.board_model.mcu import Stm32f401
 
     mcu = Stm32f401(image)
@@ -52,7 +53,8 @@ def test_the_image_boots_on_the_register_model(image: Path) -> None:
     assert mcu.asleep and mcu.resets == 1
     assert mcu.rcc.read(mcu.rcc.CFGR) & 0xC == 0x8  # SWS = PLL
     pll = mcu.rcc.read(mcu.rcc.PLLCFGR)
-    assert (pll & 63, pll >> 6 & 511, ((pll >> 16 & 3) + 1) * 2) == (16, 336, 4)  # 16 MHz / 16 × 336 / 4 = 84 MHz
+    assert (pll & 63, pll >> 6 & 511, ((pll >> 16 & 3) + 1) * 2) == (8, 336, 4)  # 8 MHz / 8 × 336 / 4 = 84 MHz
+    assert pll >> 22 & 1 and mcu.rcc.read(mcu.rcc.CR) >> 16 & 7 == 0b111  # PLLSRC = HSE; HSEON, HSERDY, HSEBYP
     assert mcu.next_tick_ns() == 2_000_000 and mcu.nvic_enabled[50] and mcu.nvic_enabled[38]
     assert mcu.iwdg.running and mcu.iwdg.timeout_ns() == 51_000_000  # (50 + 1) × 32 / 32 kHz
     assert mcu.tim2.regs[mcu.tim2.SMCR] & 7 == 3 and mcu.tim1.regs[mcu.tim1.ARR] + 1 == 84_000_000 // 20_000
@@ -388,3 +390,19 @@ def test_a_conversion_that_never_ends_is_a_fault_not_a_hang(image: Path) -> None
     (s,) = _new_samples(mcu, dec)
     assert s.status & StatusFlags.ADC_OVERRANGE and (s.theta_adc, s.theta_dot_adc) == (-2048, -2048)
     assert bridge_duty(mcu, settled=True) == 0.0
+
+
+def test_without_its_external_clock_the_board_runs_from_the_hsi(image: Path) -> None:
+    """An HSE that never starts (a board without the ST-LINK's clock, a broken crystal): the image gives up after its
+    bounded wait, turns it off and runs the PLL from the 16 MHz HSI — still 84 MHz, still a 500 Hz tick. With the
+    wrong external clock fitted (25 MHz where the image expects 8), the model refuses the clock tree it makes."""
+    from hil_mock.board_model.mcu import Stm32f401
+    from hil_mock.board_model.peripherals import ModelError
+
+    mcu = Stm32f401(image, hse_hz=None)
+    mcu.reset()
+    pll = mcu.rcc.read(mcu.rcc.PLLCFGR)
+    assert not pll >> 22 & 1 and pll & 63 == 16 and not mcu.rcc.read(mcu.rcc.CR) >> 16 & 7
+    assert mcu.next_tick_ns() == 2_000_000
+    with pytest.raises(ModelError, match=r"PLL 25 MHz / M 8 × N 336 / P 4 = 262.5 MHz"):
+        Stm32f401(image, hse_hz=25_000_000).reset()

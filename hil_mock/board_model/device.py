@@ -88,7 +88,7 @@ class BoardFirmware(Firmware):
         model = dataclasses.replace(model, calibration=board_calibration(rig))
         super().__init__(rig, model, settings, rate_hz)
         self.full_scale = board_config()["BOARD_ACTUATOR_FULL_SCALE"]
-        self.mcu = Stm32f401(image)
+        self.mcu = Stm32f401(image, hse_hz=int(board_config()["BOARD_HSE_HZ"]) or None)
         self.mcu.adc_code = self._adc_code
         self.mcu.encoder = self._encoder
         self._sampled: tuple[int, int] = (0, 0)

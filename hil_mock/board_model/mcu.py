@@ -99,8 +99,11 @@ class Stm32f401:
     ``advance_to(t_ns)`` lets device time pass (timer updates, the watchdog) and runs the handlers they raise;
     ``receive(data)`` delivers bytes to USART2's receiver; ``usart.tx`` collects what it sent."""
 
-    def __init__(self, image: Path, uid: tuple[int, int, int] = (0x00470032, 0x31345111, 0x30353235)) -> None:
+    def __init__(self, image: Path, uid: tuple[int, int, int] = (0x00470032, 0x31345111, 0x30353235),
+                 hse_hz: int | None = 8_000_000) -> None:
+        """``hse_hz``: the board's external clock (the Nucleo's 8 MHz from the ST-LINK; None: none fitted)."""
         self.image = image
+        self.hse_hz = hse_hz
         self.segments, self.symbols = load_elf(image)
         self.uid = uid
         self.clock = Clock()
@@ -116,7 +119,7 @@ class Stm32f401:
 
     # ------------------------------------------------------------ construction
     def _build(self) -> None:
-        self.rcc = Rcc()
+        self.rcc = Rcc(self.hse_hz)
         self.gpioa = Gpio("GPIOA", 0x40020000, 0, 0xA8000000, 0x0C000000, 0x64000000)
         self.gpiob = Gpio("GPIOB", 0x40020400, 1, 0x00000280, 0x000000C0, 0x00000100)
         self.tim2 = Timer("TIM2", 0x40000000, 0, 32, self.clock, None, self.raise_irq)

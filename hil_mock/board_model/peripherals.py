@@ -55,21 +55,54 @@ class Peripheral:
 
 
 class Rcc(Peripheral):
-    """RCC: oscillators ready as soon as enabled, SWS follows SW, bus clock enables."""
+    """RCC: oscillators ready as soon as enabled (the HSE only if the board has one: ``hse_hz``), SWS follows SW,
+    bus clock enables. Switching SYSCLK to the PLL checks the clock tree: the PLL's source running, its input
+    1–2 MHz, the VCO 192–432 MHz, SYSCLK the 84 MHz the model's timers count at."""
 
     name = "RCC"
     CR, PLLCFGR, CFGR, AHB1ENR, APB1ENR, APB2ENR = 0x00, 0x04, 0x08, 0x30, 0x40, 0x44
+    HSI_HZ, SYSCLK_HZ = 16_000_000, 84_000_000
 
-    def __init__(self) -> None:
+    def __init__(self, hse_hz: int | None = None) -> None:
         super().__init__(0x40023800, {0x00: 0x83, 0x04: 0x24003010, 0x08: 0, 0x30: 0, 0x40: 0, 0x44: 0})
+        self.hse_hz = hse_hz
 
     def read(self, off: int) -> int:
         v = super().read(off)
         if off == self.CR:  # HSIRDY/HSERDY/PLLRDY follow HSION/HSEON/PLLON (start-up time not modelled)
-            v = (v & ~((1 << 1) | (1 << 17) | (1 << 25))) | ((v & 1) << 1) | ((v >> 16 & 1) << 17) | ((v >> 24 & 1) << 25)
+            hse = (v >> 16 & 1) if self.hse_hz else 0
+            v = (v & ~((1 << 1) | (1 << 17) | (1 << 25))) | ((v & 1) << 1) | (hse << 17) | ((v >> 24 & 1) << 25)
         elif off == self.CFGR:
             v = (v & ~0xC) | ((v & 3) << 2)
         return v
+
+    def write(self, off: int, value: int) -> None:
+        if off == self.CR and (value ^ self.regs[self.CR]) & (1 << 18) and self.regs[self.CR] & (1 << 16):
+            raise ModelError("board model: RCC_CR HSEBYP changed with the HSE on (RM0368: only while HSEON = 0)")
+        if off == self.CFGR and value & 3 == 2:
+            self.check_pll()
+        super().write(off, value)
+
+    def pll_source_hz(self) -> int:
+        pll, cr = self.regs[self.PLLCFGR], self.regs[self.CR]
+        if pll >> 22 & 1:
+            if not (self.hse_hz and cr >> 16 & 1):
+                raise ModelError("board model: the PLL runs from the HSE, which is " +
+                                 ("off" if self.hse_hz else "not fitted on this board"))
+            return self.hse_hz
+        return self.HSI_HZ
+
+    def check_pll(self) -> None:
+        pll = self.regs[self.PLLCFGR]
+        m, n, p = pll & 63, pll >> 6 & 511, ((pll >> 16 & 3) + 1) * 2
+        if not self.regs[self.CR] >> 24 & 1:
+            raise ModelError("board model: SYSCLK switched to the PLL while it is off")
+        src = self.pll_source_hz()
+        vco_in = src / m if m >= 2 else 0
+        if not 1e6 <= vco_in <= 2e6 or not 192e6 <= vco_in * n <= 432e6 or vco_in * n / p != self.SYSCLK_HZ:
+            raise ModelError(f"board model: PLL {src / 1e6:g} MHz / M {m} × N {n} / P {p} = "
+                             f"{(vco_in * n / p) / 1e6 if m >= 2 else 0:g} MHz; the model runs at 84 MHz "
+                             "(input 1–2 MHz, VCO 192–432 MHz)")
 
     def enabled(self, reg: str, bit: int) -> bool:
         return bool(self.regs[getattr(self, reg)] >> bit & 1)

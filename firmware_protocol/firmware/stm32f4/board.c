@@ -31,6 +31,10 @@
 #define THETA_RAIL_MIN BOARD_ADC_MIN
 #define THETA_RAIL_MAX BOARD_ADC_MAX
 #endif
+#define HSI_HZ 16000000u
+#define HSE_WAIT_LOOPS 100000u /* > 10 ms at 16 MHz; a crystal starts in ~2 ms, an external clock at once */
+typedef char hse_divides_to_1_mhz[(BOARD_HSE_HZ == 0u || (BOARD_HSE_HZ % 1000000u == 0u && BOARD_HSE_HZ >= 4000000u &&
+                                                          BOARD_HSE_HZ <= 26000000u)) ? 1 : -1];
 #define ADC_WAIT_LOOPS 1000u /* > 60 µs; the two conversions take 6.5 µs from the update event */
 #define PIN_PWM 8u                              /* PA8 = TIM1_CH1 (AF1) */
 #define PIN_DIR 7u                              /* PA7 */
@@ -43,6 +47,7 @@ struct fw_hal {
     uint32_t adc_missed;        /* ticks whose conversion never ended (a rail reported instead) */
     uint32_t rx_overflows;
     uint32_t tick_cycles_max; /* worst tick in CPU cycles (DWT), for a debugger: FIRMWARE.md */
+    uint32_t clock_source_hz; /* BOARD_HSE_HZ, or 16 MHz when the HSE did not start (for a debugger) */
 };
 
 static fw_hal_t hal;
@@ -203,20 +208,43 @@ void USART2_IRQHandler(void)
 
 /* ---- set-up ---------------------------------------------------------------------------------- */
 
-static void clock_84mhz_from_hsi(void)
+/* 84 MHz through the PLL from the board's external clock (BOARD_HSE_HZ), or from the internal 16 MHz HSI (±1 %, worse
+ * over temperature) when the board has none or it does not start; returns the frequency of the source used. */
+static uint32_t clock_84mhz(void)
 {
+    uint32_t source_hz = HSI_HZ;
+    uint32_t pllsrc = 0u;
     RCC_CR |= RCC_CR_HSION;
     while (!(RCC_CR & RCC_CR_HSIRDY)) {
     }
+#if BOARD_HSE_HZ
+    {
+        uint32_t n;
+        if (BOARD_HSE_BYPASS) {
+            RCC_CR |= RCC_CR_HSEBYP; /* only while the HSE is off */
+        }
+        RCC_CR |= RCC_CR_HSEON;
+        for (n = 0u; n < HSE_WAIT_LOOPS && !(RCC_CR & RCC_CR_HSERDY); n++) {
+        }
+        if (RCC_CR & RCC_CR_HSERDY) {
+            source_hz = BOARD_HSE_HZ;
+            pllsrc = RCC_PLLCFGR_PLLSRC_HSE;
+        } else {
+            RCC_CR &= ~RCC_CR_HSEON; /* no clock there: run from the HSI */
+            RCC_CR &= ~RCC_CR_HSEBYP;
+        }
+    }
+#endif
     FLASH_ACR = FLASH_ACR_2WS_CACHES;
-    /* HSI 16 MHz / M 16 * N 336 / P 4 = 84 MHz; Q 7 -> 48 MHz */
-    RCC_PLLCFGR = 16u | (336u << 6) | (1u << 16) | (7u << 24);
+    /* source / M (1 MHz) * N 336 / P 4 = 84 MHz; Q 7 -> 48 MHz */
+    RCC_PLLCFGR = (source_hz / 1000000u) | (336u << 6) | (1u << 16) | pllsrc | (7u << 24);
     RCC_CR |= RCC_CR_PLLON;
     while (!(RCC_CR & RCC_CR_PLLRDY)) {
     }
     RCC_CFGR = RCC_CFGR_PPRE1_DIV2 | RCC_CFGR_SW_PLL;
     while ((RCC_CFGR & (3u << 2)) != RCC_CFGR_SWS_PLL) {
     }
+    return source_hz;
 }
 
 static void pin_mode(uint32_t port, uint32_t pin, uint32_t mode, uint32_t af)
@@ -321,7 +349,7 @@ static void hardware_watchdog(void)
 
 int main(void)
 {
-    clock_84mhz_from_hsi();
+    hal.clock_source_hz = clock_84mhz();
     board_with_id = board;
     board_with_id.device_id = REG32(UID_BASE) ^ REG32(UID_BASE + 4u) ^ REG32(UID_BASE + 8u);
     peripherals();

@@ -5,7 +5,12 @@
 #ifndef BOARD_CONFIG_H
 #define BOARD_CONFIG_H
 
-#define BOARD_SYSCLK_HZ 84000000u  /* HSI 16 MHz -> PLL; APB1 42 MHz (timers 84 MHz), APB2 84 MHz */
+#define BOARD_SYSCLK_HZ 84000000u  /* HSE (or HSI) -> PLL; APB1 42 MHz (timers 84 MHz), APB2 84 MHz */
+/* The external clock, a whole number of MHz in 4..26 (0: none, the internal 16 MHz HSI). Nucleo-F401RE: the ST-LINK's
+ * 8 MHz MCO, a clock input (BYPASS 1); Black Pill F401CC: a 25 MHz crystal (25000000u, BYPASS 0). If it does not
+ * start, the board runs from the HSI. */
+#define BOARD_HSE_HZ 8000000u
+#define BOARD_HSE_BYPASS 1
 #define BOARD_TIMER_HZ 84000000u   /* TIM2/5 kernel clock (APB1 x 2) and TIM1's (APB2) */
 #define BOARD_UART_BAUD 1000000u   /* furuta-rt run --baud default */
 #define BOARD_PWM_HZ 20000u        /* motor driver PWM, above hearing */
