@@ -13,6 +13,8 @@ without them, as the other firmware tests.
 from __future__ import annotations
 
 import itertools
+import math
+import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -406,3 +408,45 @@ def test_without_its_external_clock_the_board_runs_from_the_hsi(image: Path) -> 
     assert mcu.next_tick_ns() == 2_000_000
     with pytest.raises(ModelError, match=r"PLL 25 MHz / M 8 × N 336 / P 4 = 262.5 MHz"):
         Stm32f401(image, hse_hz=25_000_000).reset()
+
+
+@pytest.fixture(scope="module")
+def encoder_image(image: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The image built with a pendulum encoder of 2048 counts per turn (the QUBE-Servo 2's) instead of the analog θ."""
+    out = tmp_path_factory.mktemp("encoder-build")
+    env = {**os.environ, "FURUTA_RT_BUILD_DIR": str(out), "BOARD_DEFINES": "-DBOARD_THETA_ENCODER_CPR=2048u"}
+    res = subprocess.run([str(ROOT / "scripts" / "build_firmware")], capture_output=True, text=True, timeout=600,
+                         check=False, env=env)
+    assert res.returncode == 0, res.stderr
+    return out / "stm32f401" / "furuta_fw.elf"
+
+
+def test_a_pendulum_encoder_reports_theta_from_tim4(encoder_image: Path) -> None:
+    """θ from a quadrature encoder on TIM4 (PB6/PB7): zero where the pendulum hung at power-up, so the reading is the
+    count minus half a turn, wrapping at one turn (counts in [−1024, 1024) with 2048 per turn) and never over-range;
+    HELLO_ACK reports 2π/2048 rad per count and offset 0. The analog θ on PA4 is not what the SAMPLE carries."""
+    from hil_mock.board_model.mcu import Stm32f401
+
+    mcu = Stm32f401(encoder_image)
+    position = [0]
+    mcu.theta_encoder = lambda: position[0]
+    mcu.adc_code = lambda ch: 2048 + 700  # PA4's ADC code, unused: θ is the encoder's
+    mcu.reset()
+    mcu.receive(b"\x00" + encode(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 1)))
+    moves = {0: -1024, 1024: 0, -1: 1023, 1: -1023, 1024 + 3 * 2048: 0, -5 * 2048 - 512: 512}
+    for counts in moves:
+        position[0] = counts
+        mcu.advance_to(mcu.next_tick_ns())
+    msgs = StreamDecoder().feed(bytes(mcu.tx))
+    ack = msgs[0]
+    assert isinstance(ack, HelloAck) and (ack.theta_offset_counts, ack.theta_rad_per_count) == (0, pytest.approx(
+        2 * math.pi / 2048, rel=1e-6))
+    samples = [m for m in msgs if isinstance(m, Sample)]
+    assert [s.theta_adc for s in samples] == list(moves.values())
+    assert not any(s.status & StatusFlags.ADC_OVERRANGE for s in samples)
+
+
+def test_the_default_image_has_no_pendulum_encoder(image: Path) -> None:
+    """The analog-θ image leaves TIM4 off: its θ is PA4's ADC reading."""
+    samples = _samples_with(image, 2048 + 700, 2048, ticks=1)
+    assert samples[0].theta_adc == 700

@@ -110,6 +110,7 @@ class Stm32f401:
         self.tx = bytearray()
         self.adc_code: Callable[[int], int] = lambda ch: 2048  # 12-bit code of an ADC channel at conversion
         self.encoder: Callable[[], int] = lambda: 0  # quadrature count at TIM2's inputs
+        self.theta_encoder: Callable[[], int] = self._no_theta_encoder  # counts at TIM4's (PB6/PB7) since power-up
         self.resets = 0
         self.watchdog_resets = 0
         self.on_reset: Callable[[], None] | None = None
@@ -124,15 +125,17 @@ class Stm32f401:
         self.gpiob = Gpio("GPIOB", 0x40020400, 1, 0x00000280, 0x000000C0, 0x00000100)
         self.tim2 = Timer("TIM2", 0x40000000, 0, 32, self.clock, None, self.raise_irq)
         self.tim1 = Timer("TIM1", 0x40010000, 0, 16, self.clock, None, self.raise_irq, advanced=True)
+        self.tim4 = Timer("TIM4", 0x40000800, 2, 16, self.clock, None, self.raise_irq)
         self.tim5 = Timer("TIM5", 0x40000C00, 3, 32, self.clock, IRQ_TIM5, self.raise_irq)
         self.adc = Adc()
         self.adc.channel_code = lambda ch: self.adc_code(ch)
         self.tim5.on_trgo = lambda: self.adc.trigger(JEXTSEL_TIM5_TRGO)
         self.tim2.encoder_count = lambda: self.encoder()
+        self.tim4.encoder_count = lambda: self.theta_encoder()
         self.usart = Usart(self.raise_irq, self.tx)
         self.iwdg = Iwdg(self.clock)
         self.flash = Flash()
-        periph: list[Peripheral] = [self.rcc, self.gpioa, self.gpiob, self.tim1, self.tim2, self.tim5, self.adc,
+        periph: list[Peripheral] = [self.rcc, self.gpioa, self.gpiob, self.tim1, self.tim2, self.tim4, self.tim5, self.adc,
                                     self.usart, self.iwdg, self.flash]
         self._by_page = {p.base >> 10: p for p in periph}
         self._by_page[0x40012300 >> 10] = self.adc  # ADC common registers (ADC_CCR) share ADC1's model
@@ -172,6 +175,11 @@ class Stm32f401:
                 uc.hook_add(UC_HOOK_CODE, self._on_wfi, begin=addr, end=addr)
         for addr in self._stalls:
             uc.hook_add(UC_HOOK_CODE, self._on_stall, begin=addr, end=addr)
+
+    @staticmethod
+    def _no_theta_encoder() -> int:
+        raise ModelError("board model: TIM4 (a pendulum encoder on PB6/PB7) read, and this board has none wired: "
+                         "set Stm32f401.theta_encoder")
 
     def _on_wfi(self, uc: Uc, address: int, size: int, user: object) -> None:
         self.asleep = True

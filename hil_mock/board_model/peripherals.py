@@ -182,8 +182,9 @@ class Timer(Peripheral):
         return 1e9 * (self.regs[self.PSC] + 1) / TIMER_HZ
 
     def count(self) -> int:
-        if self.regs[self.SMCR] & 7 in (1, 2, 3):  # encoder interface: the plant's position
-            return (self.encoder_count() if self.encoder_count and self.regs[self.CR1] & 1 else 0) & self.mask
+        if self.regs[self.SMCR] & 7 in (1, 2, 3):  # encoder interface: the plant's position, wrapping at ARR
+            counts = self.encoder_count() if self.encoder_count and self.regs[self.CR1] & 1 else 0
+            return counts % ((self.regs[self.ARR] & self.mask) + 1)
         if not self.counting():
             return self.regs[self.CNT]
         return int((self.clock.now_ns - self.t0_ns) / self.tick_ns()) & self.mask

@@ -24,7 +24,16 @@
 #include "ring.h"
 
 #define PWM_TOP (BOARD_TIMER_HZ / BOARD_PWM_HZ) /* 4200 timer counts per PWM period */
-#if BOARD_THETA_WRAPS
+#if BOARD_THETA_ENCODER_CPR
+/* θ from TIM4's count, which wraps with the pendulum's turn: counts from upright in [-CPR/2, CPR/2) */
+#define THETA_RAD_PER_COUNT (6.2831853f / (float)BOARD_THETA_ENCODER_CPR)
+#define THETA_OFFSET_COUNTS 0
+typedef char theta_encoder_cpr_fits[(BOARD_THETA_ENCODER_CPR % 2u == 0u && BOARD_THETA_ENCODER_CPR <= 65536u) ? 1 : -1];
+#else
+#define THETA_RAD_PER_COUNT BOARD_THETA_RAD_PER_COUNT
+#define THETA_OFFSET_COUNTS BOARD_THETA_OFFSET_COUNTS
+#endif
+#if BOARD_THETA_WRAPS || BOARD_THETA_ENCODER_CPR
 #define THETA_RAIL_MIN (-(1L << 20)) /* a wrapping θ has no rail: outside every reading */
 #define THETA_RAIL_MAX (1L << 20)
 #else
@@ -57,8 +66,8 @@ static const fw_board_t board = {
     BOARD_DEFAULT_RATE_HZ,
     BOARD_MAX_RATE_HZ,
     BOARD_WATCHDOG_MS,
-    BOARD_THETA_RAD_PER_COUNT,
-    BOARD_THETA_OFFSET_COUNTS,
+    THETA_RAD_PER_COUNT,
+    THETA_OFFSET_COUNTS,
     BOARD_THETA_DOT_RAD_S_PER_COUNT,
     BOARD_THETA_DOT_OFFSET_COUNTS,
     BOARD_PHI_COUNTS_PER_REV,
@@ -114,6 +123,15 @@ static void latch_adc(fw_hal_t *h)
     h->theta_dot = adc_counts(ADC1_JDR2);
 }
 
+#if BOARD_THETA_ENCODER_CPR
+/* θ from the pendulum's encoder: TIM4 counts 0..CPR-1 from where the pendulum hung at power-up (θ = π), so upright
+ * is CPR/2 and the reading is the count minus that. */
+static int16_t theta_from_encoder(void)
+{
+    return (int16_t)((int32_t)TIM_CNT(TIM4_BASE) - (int32_t)(BOARD_THETA_ENCODER_CPR / 2u));
+}
+#endif
+
 void hal_actuator_write(fw_hal_t *h, int16_t counts)
 {
     uint32_t mag = (uint32_t)(counts < 0 ? -(int32_t)counts : (int32_t)counts);
@@ -168,8 +186,16 @@ void TIM5_IRQHandler(void)
     uint32_t cycles;
     int byte;
     hal.phi = (int32_t)TIM_CNT(TIM2_BASE); /* first: θ and θ̇ were sampled at the update event */
-    TIM_SR(TIM5_BASE) = ~TIM_SR_UIF;
+#if BOARD_THETA_ENCODER_CPR
+    {
+        int16_t theta = theta_from_encoder();
+        latch_adc(&hal);
+        hal.theta = theta;
+    }
+#else
     latch_adc(&hal); /* before the received bytes: a CONFIG's UG triggers another conversion */
+#endif
+    TIM_SR(TIM5_BASE) = ~TIM_SR_UIF;
     while ((byte = ring_get(&hal.rx)) >= 0) {
         fw_rx_byte(&fw, (uint8_t)byte);
     }
@@ -306,6 +332,17 @@ static void peripherals(void)
     TIM_SMCR(TIM2_BASE) = 3u;                                       /* SMS = encoder mode 3 */
     TIM_ARR(TIM2_BASE) = 0xFFFFFFFFu;
     TIM_CR1(TIM2_BASE) = TIM_CR1_CEN;
+#if BOARD_THETA_ENCODER_CPR
+    /* pendulum encoder: TIM4 encoder mode 3 on PB6 (A) / PB7 (B), the count wrapping at one turn */
+    RCC_APB1ENR |= RCC_APB1ENR_TIM4;
+    GPIO_PUPDR(GPIOB_BASE) |= (1u << 12) | (1u << 14);
+    pin_mode(GPIOB_BASE, 6u, GPIO_MODE_AF, 2u);
+    pin_mode(GPIOB_BASE, 7u, GPIO_MODE_AF, 2u);
+    TIM_CCMR1(TIM4_BASE) = 1u | (3u << 4) | (1u << 8) | (3u << 12);
+    TIM_SMCR(TIM4_BASE) = 3u;
+    TIM_ARR(TIM4_BASE) = BOARD_THETA_ENCODER_CPR - 1u;
+    TIM_CR1(TIM4_BASE) = TIM_CR1_CEN;
+#endif
 
     /* ADC1: injected sequence IN4 (θ) then IN8 (θ̇), 56-cycle sampling, ADC clock 84 / 4 = 21 MHz */
     pin_mode(GPIOA_BASE, 4u, GPIO_MODE_ANALOG, 0u);

@@ -33,6 +33,13 @@
 /* 1: θ's sensor covers a full turn and wraps (0 V follows 3.3 V: AS5600, a continuous-turn potentiometer), so a
  * reading at 0 or 4095 is the pendulum passing the wrap, not a rail; 0: it saturates at the rails (ADC_OVERRANGE). */
 #define BOARD_THETA_WRAPS 1
+/* θ from a quadrature encoder instead (the QUBE-Servo 2's 2048 counts per turn, ST's EDUKIT's 2400): its counts per
+ * turn (x4), on TIM4 (PB6 = A, PB7 = B); 0: the analog sensor on PA4 above. Its zero is where the pendulum is at
+ * power-up, which must be hanging still (θ = π); HELLO_ACK then reports 2 pi / CPR and offset 0, and the reading
+ * wraps (describe the rig with theta_wraps = true). Set here or with BOARD_DEFINES at build time. */
+#ifndef BOARD_THETA_ENCODER_CPR
+#define BOARD_THETA_ENCODER_CPR 0u
+#endif
 /* θ̇: an analog differentiator (or tacho) on PB0, 0 rad/s at mid-scale. */
 #define BOARD_THETA_DOT_RAD_S_PER_COUNT 0.01f /* +-20 rad/s over the ADC range */
 #define BOARD_THETA_DOT_OFFSET_COUNTS 0

@@ -31,6 +31,7 @@
 #define RCC_AHB1ENR_GPIOA (1u << 0)
 #define RCC_AHB1ENR_GPIOB (1u << 1)
 #define RCC_APB1ENR_TIM2 (1u << 0)
+#define RCC_APB1ENR_TIM4 (1u << 2)
 #define RCC_APB1ENR_TIM5 (1u << 3)
 #define RCC_APB1ENR_USART2 (1u << 17)
 #define RCC_APB2ENR_TIM1 (1u << 0)
@@ -52,9 +53,10 @@
 #define GPIO_MODE_AF 2u
 #define GPIO_MODE_ANALOG 3u
 
-/* timers: TIM1 (advanced, 16-bit, APB2), general-purpose TIM2 and TIM5 (32-bit) */
+/* timers: TIM1 (advanced, 16-bit, APB2), general-purpose TIM2 and TIM5 (32-bit), TIM4 (16-bit) */
 #define TIM1_BASE 0x40010000u
 #define TIM2_BASE 0x40000000u
+#define TIM4_BASE 0x40000800u
 #define TIM5_BASE 0x40000C00u
 #define TIM_CR1(b) REG32((b) + 0x00u)
 #define TIM_CR2(b) REG32((b) + 0x04u)
