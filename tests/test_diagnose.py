@@ -286,7 +286,7 @@ def test_theta_filter_option() -> None:
 
 
 def test_a_log_is_diagnosed_on_its_balancing_stretch() -> None:
-    from furuta_rt.diagnose.engine import balancing_span
+    from furuta_rt.diagnose.stages.start import balancing_span
 
     t = np.arange(10.0)
     rec = Recording(t=t, theta=t, phi=t, u=t, extra={"balancing": np.array([0, 0, 1, 1, 1, 0, 1, 1, 0, 0.0])})

@@ -50,7 +50,7 @@ def test_no_saturation_from_peaks_the_arm_follows_to_a_count(quiet_null) -> None
 
 def test_the_independent_null_is_consistent() -> None:
     """20 s of the oracle's null case with its sensor noise: nothing found, both equations consistent. The arm's
-    datasheet parameters are judged together (engine._group_pays): a gain 0.61 + inertia 0.6× pair that only rescaled
+    datasheet parameters are judged together (stages.equations._group_pays): a gain 0.61 + inertia 0.6× pair that only rescaled
     the pendulum's reaction on the arm (0.9 % of the held-out error, paired t ≈ 1) was reported before."""
     d = diagnose(ind.simulate(ind.CASES[0], 20.0), load_rig("thesis"), Options(closed_loop=False)).to_json()
     assert d["effects"] == []

@@ -260,7 +260,7 @@ def test_stick_stage_runs_without_coulomb_selected_first(thesis_rig, sticking) -
     prep = prepare(sticking, thesis_rig)
     ctx = Context.build(prep, thesis_rig, 0.03, 0.05, 0.005)
     em = EquationModel(ctx, ARM, Thresholds())
-    level = em.evaluate_with(em.spec0(), "arm_coulomb").params["arm_coulomb"]["Fc"]  # as engine._provisional_coulomb
+    level = em.evaluate_with(em.spec0(), "arm_coulomb").params["arm_coulomb"]["Fc"]  # as stick_windows.provisional_coulomb
     assert level == pytest.approx(0.05, rel=0.1)
     stage = assess(thesis_rig, {}, prep, ctx.fine, Thresholds(), lambda d: None, coulomb=level)
     assert stage is not None

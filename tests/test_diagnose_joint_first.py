@@ -11,10 +11,10 @@ import pytest
 
 from furuta_rt.config import load_rig
 from furuta_rt.diagnose import Options
-from furuta_rt.diagnose.engine import arm_sigma
 from furuta_rt.diagnose.regression.library import ARM, Context
 from furuta_rt.diagnose.regression.selection import EquationModel
 from furuta_rt.diagnose.regression.states import prepare
+from furuta_rt.diagnose.stages.start import arm_sigma
 from furuta_rt.model.effects import effects_from_assignments
 from furuta_rt.model.sensors import Calibration, count_of, quantise
 

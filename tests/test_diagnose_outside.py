@@ -13,7 +13,6 @@ import pytest
 from benchmarks import suite
 from furuta_rt.config import load_rig
 from furuta_rt.diagnose import Options, diagnose
-from furuta_rt.diagnose.engine import refit
 from furuta_rt.diagnose.judgement import verify
 from furuta_rt.diagnose.judgement.verdict import (
     FLOOR_ACCURACY,
@@ -26,6 +25,7 @@ from furuta_rt.diagnose.judgement.verdict import (
 )
 from furuta_rt.diagnose.regression.library import ARM, PEND
 from furuta_rt.diagnose.stages import gate
+from furuta_rt.diagnose.stages.findings import refit
 
 FAST = Options(closed_loop=False, max_windows=20)
 SECONDS = 30.0

@@ -85,7 +85,7 @@ def _context(rec: Recording, rig) -> tuple[Context, dict[str, EquationModel]]:
 def test_gate_moves_an_effect_that_predicts_worse(rig, null) -> None:
     """A deliberately wrong effect (a 0.15 rad θ offset on a rig without one) fed through the gate is moved to
     not_predictive with its numbers; a harmless one (a tiny arm spring) is kept: drop on evidence, keep without."""
-    from furuta_rt.diagnose.engine import _select
+    from furuta_rt.diagnose.stages.equations import select_equation as _select
 
     ctx, _ = _context(null, rig)
     opts = Options()

@@ -1,4 +1,4 @@
-"""A log's balancing stretch (engine.balancing_span) and the closed-loop re-simulation: a stretch that starts after a
+"""A log's balancing stretch (stages.start.balancing_span) and the closed-loop re-simulation: a stretch that starts after a
 swing-up's catch — the pendulum and the arm moving, the arm turned away from zero — is not re-simulated from rest."""
 
 from __future__ import annotations
@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 
 from furuta_rt.config import load_rig
-from furuta_rt.diagnose.engine import Options, _closed_loop, balancing_span, moving_start
+from furuta_rt.diagnose.stages.closed_loop import moving_start, resimulation
+from furuta_rt.diagnose.stages.findings import Options
+from furuta_rt.diagnose.stages.start import balancing_span
 from furuta_rt.recording import Recording
 
 
@@ -27,8 +29,8 @@ def test_a_stretch_after_a_catch_is_not_resimulated_from_rest() -> None:
     assert len(stretch) == 600 and stretch.meta["stretch_of_log"]
     why = moving_start(stretch)
     assert "-4.40 rad" in why and "θ̇" in why
-    assert _closed_loop(stretch, load_rig("thesis"), [], Options(), notes) is None
-    assert any("re-simulation starts from rest and is skipped" in n for n in notes)
+    stats, why_not = resimulation(stretch, load_rig("thesis"), [], Options())
+    assert stats is None and "re-simulation starts from rest and is skipped" in why_not
 
 
 def test_a_stretch_that_starts_at_rest_near_zero_is_not_refused() -> None:

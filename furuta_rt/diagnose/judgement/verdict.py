@@ -203,8 +203,8 @@ def _rms(x: np.ndarray) -> float:
 
 def assess(ctx: Context, ems: dict, res: dict, seed: int = 0, found: list | None = None,
            moved: list[dict] | None = None) -> dict[str, EquationVerdict]:
-    """The verdict of each equation from the final ``res`` (engine.EquationResult) and its models ``ems``; ``found``
-    (engine.Found): every effect reported, including those of the window stages and the free decay, which are not
+    """The verdict of each equation from the final ``res`` (stages.findings.EquationResult) and its models ``ems``; ``found``
+    (stages.findings.Found): every effect reported, including those of the window stages and the free decay, which are not
     in the equation's regression (its augmented residual does not hold them); ``moved``: the effects the gate moved
     out (gate.run), whose band test (``band``) is the signature of a compliance or mode (``mode_cause``)."""
     out: dict[str, EquationVerdict] = {}

@@ -364,7 +364,7 @@ class EquationModel:
     def rivals(self, name: str, spec: Spec) -> list[str]:
         """Candidates that scored within their uncertainty of ``name`` at the forward step that accepted it: admissible,
         and the held-out errors over the blocks not clearly worse (paired t < RIVAL_T or within RIVAL_GAIN relative),
-        and able to take its place in ``spec``. engine.check_lookalikes tries them beside the library's fixed pairs."""
+        and able to take its place in ``spec``. stages.lookalikes.check_lookalikes tries them beside the library's fixed pairs."""
         for step, evals in sorted(self._step_evals.items()):
             won = evals.get(name)
             if won is None or not any(r["accepted"] and r["candidate"] == name and r["step"] == step for r in self._trace):
@@ -499,7 +499,7 @@ class EquationModel:
 
 
 FAR_END = {"inertia": (0, -1), "deadzone": (-1,), "limit": (0,), "delay": (-1,)}  # grid ends that are no estimate
-RIVAL_T, RIVAL_GAIN = 3.0, 0.01  # as engine.Options.ambiguity_t / ambiguity_gain
+RIVAL_T, RIVAL_GAIN = 3.0, 0.01  # as stages.findings.Options.ambiguity_t / ambiguity_gain
 JOINT = ("input_gain", "arm_viscous", "arm_inertia")  # the arm parameters a datasheet most often gets wrong
 PAIRS_REFINED = 3  # the best-screened pairs fitted in full (nonlinear parameters re-profiled)
 OFFSET = ("arm_bias",)  # tried with JOINT when that alone does not go first: a constant torque (a DAC/amplifier offset, a

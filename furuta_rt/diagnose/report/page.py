@@ -56,7 +56,7 @@ def t_stat(t: object) -> str:
 
 
 def _combined(e: dict) -> str:
-    """The note on an effect the recording does not pin alone: the combinations of it the data pins (engine.Found)."""
+    """The note on an effect the recording does not pin alone: the combinations of it the data pins (stages.findings.Found)."""
     if e.get("pinned", True):
         return ""
     combos = e.get("pinned_combinations") or []
