@@ -4,7 +4,7 @@ One recording may not separate two look-alikes (an input gain and an arm inertia
 inertia on one sine, a dead band and dry friction at one speed); a designed experiment's recording adds the rows that
 do. The joint fit stacks the recordings' inverse-dynamics rows (each recording keeps its own states, kernels and
 time blocks) and runs diagnose's own selection (regression.selection.EquationModel.select, refit, the significance
-and backward passes) and its own look-alike judgement (engine.check_lookalikes: the paired t of the held-out block
+and backward passes) and its own look-alike judgement (stages.lookalikes.check_lookalikes: the paired t of the held-out block
 errors, the κ test for gain ↔ inertia, the rest test for a bias) on the stack. The physical parameters are shared;
 a nuisance term that belongs to a run, not to the rig, gets one column per recording: the arm encoder's zero is set
 when a run starts, so a cable spring's −k(φ − φ0) has its constant k·φ0 per recording.
@@ -25,22 +25,15 @@ from typing import Any
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose.engine import (
-    SEPARATION_Z,
-    Diagnosis,
-    arm_sigma,
-    balancing_span,
-    check_lookalikes,
-    completed_pairs,
-    diagnose,
-    plain,
-    significant,
-)
+from furuta_rt.diagnose.engine import Diagnosis, diagnose, plain
 from furuta_rt.diagnose.regression.fitting import Blocks
 from furuta_rt.diagnose.regression.library import ARM, PEND, Context, InputPath
 from furuta_rt.diagnose.regression.selection import EquationModel, Spec
 from furuta_rt.diagnose.regression.states import prepare
+from furuta_rt.diagnose.stages.equations import completed_pairs, fair_baseline, significant
 from furuta_rt.diagnose.stages.findings import EquationResult, Found, Options, found_in, refit
+from furuta_rt.diagnose.stages.lookalikes import SEPARATION_Z, check_lookalikes, gain_inertia_separation
+from furuta_rt.diagnose.stages.start import arm_sigma, balancing_span
 from furuta_rt.errors import UserError
 from furuta_rt.recording import Recording
 
@@ -163,7 +156,7 @@ class JointDiagnosis:
 
     sources: list[str]
     effects: list[Found]
-    ambiguities: list[dict]  # unresolved on the joint fit (engine.check_lookalikes), with the data still needed
+    ambiguities: list[dict]  # unresolved on the joint fit (stages.lookalikes.check_lookalikes), with the data still needed
     lookalikes: list[dict]  # told apart on the joint fit
     pairs: list[dict]  # each look-alike a single recording left unresolved: what the joint fit made of it
     singles: list[Diagnosis] = field(repr=False)
@@ -320,11 +313,10 @@ def pair_test(em: EquationModel, truth: str, rival: str, base: Spec | None = Non
     """diagnose's look-alike statistics for one pair on ``em`` (one recording's equation, or a JointEquationModel),
     with ``truth`` the model named and ``rival`` in its place on top of ``base`` (default the nominal model): the
     paired t of the held-out block errors (rival against truth, the truth's nonlinear parameter re-profiled in each
-    fold as engine.fair_baseline does: positive when the data favour ``truth``), the relative held-out difference, and
-    for gain ↔ inertia the κ test (engine.gain_inertia_separation) with z = |κ − the rival's prediction| / se, the
+    fold as stages.equations.fair_baseline does: positive when the data favour ``truth``), the relative held-out difference, and
+    for gain ↔ inertia the κ test (stages.lookalikes.gain_inertia_separation) with z = |κ − the rival's prediction| / se, the
     standard errors by which the data reject the rival. ``decisive``: the statistic that decides this pair (κ's z for
     gain ↔ inertia, else the paired t) and ``threshold`` the value it must reach."""
-    from furuta_rt.diagnose.engine import fair_baseline, gain_inertia_separation
     from furuta_rt.diagnose.regression.fitting import paired_t
 
     base = base or em.spec0()
