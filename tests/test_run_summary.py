@@ -43,3 +43,26 @@ def test_the_first_catch_says_its_time_base() -> None:
     assert "first caught 4.37 s after the swing-up began (5.37 s into the run" in line and "not counted" in line
     su = summary_dict(r, rate_hz=500, mode="none", rig="thesis", log_path=None, warnings=[])["swing_up"]
     assert su["first_catch_s"] == 4.37 and su["first_catch_run_s"] == 5.37
+
+
+def test_the_recent_trace_is_a_ring_that_keeps_nothing_per_tick() -> None:
+    """The control loop stores t, θ, φ every balancing tick for the summary's limit cycles: the ring keeps the last
+    ``capacity`` samples in time order, and storing holds on to no new object (a list of floats kept 72 bytes a
+    tick: the control process grew until the ring wrapped)."""
+    import tracemalloc
+
+    from furuta_rt.runtime.trace import RecentTrace
+
+    ring = RecentTrace(capacity=1000)
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        for k in range(2500):
+            ring.add(k * 0.001, math.sin(k * 0.01), math.cos(k * 0.01))
+        kept = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    assert kept < 4096, f"{kept} bytes kept by 2500 stores"
+    t, theta, phi = ring.arrays()
+    k = np.arange(1500, 2500)
+    assert np.array_equal(t, k * 0.001) and np.array_equal(theta, np.sin(k * 0.01)) and np.array_equal(phi, np.cos(k * 0.01))

@@ -53,6 +53,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     command = "furuta-rt"
+    words = sys.argv[1:] if argv is None else argv
+    if words and words[0] == "run":  # the real-time process: before the imports
+        from furuta_rt.runtime.rt import lean_process
+
+        lean_process()
     try:
         parser = _build_parser_uninterrupted()
         args, extra = parser.parse_known_args(argv)

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -81,6 +82,21 @@ def observer_design(rig: RigConfig) -> ArmObserverDesign:
     return ArmObserverDesign.design(A, B, h, rig.observer.accel_noise, phi_noise)
 
 
+@dataclass(frozen=True)
+class ControllerDesign:
+    """What ``Controller.from_rig`` computes with scipy (and python-control): the gains L and the observer's
+    matrices. Plain arrays, so the daemon has them made in a helper process (``design_in_helper``) and the
+    real-time process never imports scipy."""
+
+    gains: np.ndarray
+    observer: ArmObserverDesign
+
+
+def controller_design(rig: RigConfig, gains: np.ndarray | list[float] | None = None) -> ControllerDesign:
+    """L (``gains`` if given, else the rig's design) and the observer design for ``rig``."""
+    return ControllerDesign(design_gains(rig) if gains is None else np.asarray(gains, dtype=float), observer_design(rig))
+
+
 class Controller:
     """u = L·x + F̂ with a φ̇ observer; deterministic given its inputs."""
 
@@ -125,12 +141,17 @@ class Controller:
 
     @classmethod
     def from_rig(
-        cls, rig: RigConfig, mode: CompMode | None = None, gains: np.ndarray | list[float] | None = None
+        cls, rig: RigConfig, mode: CompMode | None = None, gains: np.ndarray | list[float] | None = None,
+        design: ControllerDesign | None = None,
     ) -> Controller:
+        """The controller for ``rig``; ``design``: its gains and observer already made (``controller_design``),
+        else they are made here."""
         h = 1.0 / rig.control.rate_hz
+        if design is None:
+            design = ControllerDesign(design_gains(rig) if gains is None else gains, observer_design(rig))  # type: ignore[arg-type]
         return cls(
-            gains=design_gains(rig) if gains is None else gains,
-            observer=ArmObserver(observer_design(rig)),
+            gains=design.gains,
+            observer=ArmObserver(design.observer),
             compensator=Compensator.from_config(rig.compensation, h, mode),
             u_limit=rig.actuator.limit,
             command_delay_ticks=rig.control.command_delay_ticks,

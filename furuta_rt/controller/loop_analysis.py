@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from furuta_rt.config import RigConfig
 from furuta_rt.controller.controller import design_gains, observer_design
@@ -59,6 +58,8 @@ def loop_model(rig: RigConfig, gains: np.ndarray | None = None) -> LoopModel:
     s = rig.sensors
     bessel = BesselPath(s.bessel_cutoff) if s.bessel_cutoff else None
     Ac, Bc = _plant_and_filter(*actuated_linearization(plant, rig.actuator), bessel)
+    import scipy.linalg  # here, not above: the CLI (and so the real-time process) imports this module
+
     # Zero-order hold discretisation.
     M = scipy.linalg.expm(np.block([[Ac, Bc], [np.zeros((1, 7))]]) * h)
     Phi, Gam = M[:6, :6], M[:6, 6:7]

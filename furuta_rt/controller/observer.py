@@ -19,7 +19,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,6 +38,8 @@ class ArmObserverDesign:
         cls, A: np.ndarray, B: np.ndarray, h: float, accel_noise: float, phi_noise: float
     ) -> ArmObserverDesign:
         """From the (actuated) linearisation (A, B) of eq. 6; ZOH discretisation at period h."""
+        import scipy.linalg  # here, not above: the real-time process gets the matrices made (controller.design_in_helper)
+
         Ac = np.array([[0.0, 1.0], [0.0, A[3, 3]]])
         Bc = np.array([[0.0, 0.0], [A[3, 0], B[3, 0]]])
         M = scipy.linalg.expm(np.block([[Ac, Bc], [np.zeros((2, 4))]]) * h)

@@ -48,9 +48,10 @@ from furuta_rt.io.mcap_log import run_metadata
 from furuta_rt.io.output import probe_writable, write_text
 from furuta_rt.runtime import signals as stop_signals
 from furuta_rt.runtime.channel import Channel, Flag
+from furuta_rt.runtime.design_process import DesignProcess
 from furuta_rt.runtime.hardware import DeviceInfo, SerialHardware
 from furuta_rt.runtime.logger import LogSetup, logger_process
-from furuta_rt.runtime.rt import setup_realtime
+from furuta_rt.runtime.rt import CONTROL_THREAD_STACK, setup_realtime
 from furuta_rt.runtime.summary import format_summary, mock_injections, summary_dict
 
 LOG_QUEUE_BATCHES = 200  # 20 s of ticks at 10 batches/s before the loop starts dropping
@@ -307,9 +308,11 @@ def run_daemon(opts: RunOptions) -> int:
     signal during start-up). Every stop signal (``signals.STOP_SIGNALS``) is handled for the whole run."""
     guard = stop_signals.RunGuard()
     old = stop_signals.install(guard)
+    stack = threading.stack_size(CONTROL_THREAD_STACK)  # mlockall locks a thread's whole stack (8 MB by default)
     try:
         return _run_session(opts, guard)
     finally:
+        threading.stack_size(stack)
         stop_signals.restore(old)
 
 
@@ -329,11 +332,14 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
     ctrl = None
     mock_stats = ""
     log_ok = True
+    design: DesignProcess | None = None
     # a stop signal during start-up raises Interrupted (exit 128 + signum) so the cleanup below runs and
     # no hil-mock is left behind; from the loop on it is an operator stop
     try:
-        # start-up in parallel: the logger process, hil-mock (a few seconds of imports each) and, here,
-        # the controller's own imports; the device handshake comes last, right before the first tick
+        # start-up in parallel: the controller's design (a helper process: scipy stays out of this one), the
+        # logger process, hil-mock (a few seconds of imports each) and, here, the loop's own imports; the device
+        # handshake comes last, right before the first tick
+        design = DesignProcess(rig, opts.gains)
         if opts.log_path or opts.foxglove_port is not None:
             children.spawn_logger(LogSetup(path=opts.log_path, rig=rig, foxglove_port=opts.foxglove_port,
                                            foxglove_host=opts.foxglove_host,
@@ -346,7 +352,7 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
         from furuta_rt.runtime.loop import ControlLoop, LoopSettings
         from furuta_rt.runtime.supervisor import Supervisor
 
-        ctrl = Controller.from_rig(rig, mode=opts.mode, gains=opts.gains)  # type: ignore[arg-type]
+        ctrl = Controller.from_rig(rig, mode=opts.mode, design=design.result())  # type: ignore[arg-type]
         if opts.experiment is not None:
             from furuta_rt.experiment.plan import Excitation
 
@@ -431,6 +437,8 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
     finally:
         # shutting down: a second Ctrl-C (or a SIGTERM burst, a hang-up) must not cut the log or the summary
         guard.shutting_down()
+        if design is not None:
+            design.close()
         if hw is not None:
             hw.stop()
             hw.close()

@@ -15,6 +15,15 @@ MCL_CURRENT = 1
 MCL_FUTURE = 2
 
 
+CONTROL_THREAD_STACK = 1 << 20  # bytes: a helper thread of the control process (queue feeder, watcher) needs little
+
+
+def lean_process() -> None:
+    """Before numpy is imported into the real-time process: OpenBLAS with one thread. Its worker threads (one
+    per core) each keep a 32 MB buffer that mlockall would lock, for linear algebra no tick does."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
 def freeze_gc() -> None:
     """Collect once, move every object to the permanent generation and stop the cyclic collector:
     no collection pause can hit a tick (the loop creates no reference cycles)."""
