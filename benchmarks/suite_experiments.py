@@ -7,8 +7,9 @@ nothing (a null case: a resolution then is a false one). Per case: a passive rec
 experiment `experiment design` chooses for the pair, simulated on the true rig with another seed (the rig's sensor
 noise, 10 kHz physics: finer than the design's 2 kHz prediction), and `diagnose` of both jointly.
 
-``held_out``: cases not run while the joint fit and the calibrated score were built. Built on (in-sample): input gain
-0.8 ↔ arm inertia and its null.
+``held_out``: cases not run while the joint fit, the calibrated score and the hanging family were built. Built on
+(in-sample): input gain 0.8 ↔ arm inertia, balancing and hanging, and their nulls. A ``hanging`` case's experiment is
+an open-loop plan about θ = π (simulated: `run --experiment` runs balancing plans only).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ class PairCase:
     null: bool  # the truth has neither
     seed: int
     held_out: bool
+    mode: str = "balancing"  # the experiment's: "hanging" designs an open-loop plan (furuta_rt.experiment.hanging)
 
     @property
     def named(self) -> str:
@@ -42,8 +44,9 @@ class PairCase:
         return {} if self.null else self.a
 
 
-def _pair(name: str, a: dict, b: dict, seed: int, held_out: bool) -> list[PairCase]:
-    return [PairCase(name, a, b, False, seed, held_out), PairCase(f"{name} (null)", a, b, True, seed + 50, held_out)]
+def _pair(name: str, a: dict, b: dict, seed: int, held_out: bool, mode: str = "balancing") -> list[PairCase]:
+    return [PairCase(name, a, b, False, seed, held_out, mode),
+            PairCase(f"{name} (null)", a, b, True, seed + 50, held_out, mode)]
 
 
 CASES: list[PairCase] = [
@@ -56,4 +59,8 @@ CASES: list[PairCase] = [
     *_pair("input dead band ↔ arm Coulomb", {"input_deadzone": {"width": 0.02}}, {"arm_coulomb": {"Fc": 0.02}}, 4, True),
     *_pair("arm bias ↔ input gain", {"arm_bias": {"tau": 0.02}}, {"input_gain": {"gain": 1.1}}, 5, True),
     *_pair("arm viscous ↔ arm Coulomb", {"arm_viscous": {"Fv": 0.02}}, {"arm_coulomb": {"Fc": 0.01}}, 6, True),
+    *_pair("input gain 0.8 ↔ arm inertia, hanging", {"input_gain": {"gain": 0.8}}, {"arm_inertia": {"J": J_THESIS / 0.8}},
+           7, False, "hanging"),
+    *_pair("arm inertia ×1.25 ↔ input gain, hanging", {"arm_inertia": {"J": 1.25 * J_THESIS}},
+           {"input_gain": {"gain": 0.8}}, 8, True, "hanging"),
 ]

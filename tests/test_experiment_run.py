@@ -120,7 +120,9 @@ def test_excitation_settles_marks_segments_and_ends() -> None:
     ('[[segment]]\nkind = "chirp"\namplitude = 0.1\nf0 = 3\nf1 = 1\nduration = 2', "must be above f0"),
     ('[[segment]]\nkind = "dither"\namplitude = 0.1\nfrequency = 5\nduration = 2\nphase = 1', "unknown key 'phase'"),
     ('[[segment]]\nkind = "hold"\nduration = 2\ndither = 0.1', "needs dither_hz"),
-    ('mode = "hanging"\n[[segment]]\nkind = "hold"\nduration = 1', "mode = 'hanging'"),
+    ('mode = "swinging"\n[[segment]]\nkind = "hold"\nduration = 1', "mode = 'swinging'; one of balancing, hanging"),
+    ('mode = "hanging"\n[[segment]]\nkind = "sweep"\namplitude = 0.3\nspeed = 0.1\nduration = 1',
+     "hanging plans take chirp, dither and hold"),
     ("settle_s = 1", "no [[segment]]"),
     ("settle_s = [", "not valid TOML"),
     ("", "no [[segment]]"),
@@ -229,4 +231,17 @@ def test_run_refuses_a_plan_beyond_the_limits_before_starting(tmp_path: Path, ca
     rc = main(["run", "--mock", "--experiment", str(plan), "--no-tui", "--log", str(tmp_path / "run.mcap")])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "adds up to 1.9 to u" in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "run.mcap").exists()
+
+
+def test_run_refuses_a_hanging_plan_before_starting(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """A hanging plan (open loop) is designed and simulated, not run: exit 2, one line naming why, nothing started."""
+    from furuta_rt.cli import main
+
+    plan = write_plan(tmp_path, 'mode = "hanging"\n[[segment]]\nkind = "chirp"\namplitude = 0.03\nf0 = 0.4\nf1 = 1.8\n'
+                      'duration = 2\n')
+    assert load_plan(plan).mode == "hanging"
+    rc = main(["run", "--mock", "--experiment", str(plan), "--no-tui", "--log", str(tmp_path / "run.mcap")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "runs plans while balancing" in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "run.mcap").exists()

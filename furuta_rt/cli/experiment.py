@@ -28,9 +28,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("experiment", help="design an experiment that separates a diagnose report's look-alikes")
     verbs = p.add_subparsers(dest="verb", required=True, metavar="VERB")
     d = verbs.add_parser("design", help="search the excitation that best separates the report's unresolved look-alike",
-                         description="Predict candidate excitations (arm sweeps and steps, chirps and dithers on u) "
-                         "with the simulator under both alternatives and write the one with the largest expected "
-                         "paired t that keeps within the rig's limits.")
+                         description="Simulate candidate excitations (arm sweeps and steps, chirps and dithers on u; "
+                         "with --hanging, torque chirps and dithers with the pendulum hanging) under both alternatives "
+                         "with the rig's sensor noise, score each by diagnose's own test statistic for the pair on "
+                         "those recordings, and write the best one that keeps within the rig's limits.")
     d.add_argument("report", metavar="REPORT.json", help="`furuta-rt diagnose --json` output")
     d.add_argument("-o", "--output", required=True, metavar="PLAN.toml", help="the plan to write (an existing file "
                    "only with --force)")
@@ -43,6 +44,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--max-theta", type=float, metavar="RAD", help="|θ| limit (default: safety.theta_limit)")
     d.add_argument("--max-u", type=float, metavar="U", help="|u| limit (default: actuator.limit; reaching it is "
                    "saturation)")
+    d.add_argument("--hanging", action="store_true", help="design an open-loop plan with the pendulum hanging (torque "
+                   "chirps and dithers near its natural frequency: the pendulum's reaction on the arm, which tells an "
+                   "input gain from an arm inertia, is far larger than while balancing); --max-theta is then |θ − π| "
+                   "(default 1 rad). Simulated, not run by `run --experiment`")
     d.set_defaults(func=run_design)
 
 
@@ -75,7 +80,10 @@ def run_design(args: argparse.Namespace) -> int:
     claim_outputs([("-o", args.output)], force=args.force, inputs=[args.report])
     rig = rig_from_args(args)
     alt = alternatives_from_report(_load_report(args.report), args.pair)
-    limits = (args.max_phi or rig.safety.phi_limit, args.max_theta or rig.safety.theta_limit,
+    from furuta_rt.experiment.hanging import SWING_LIMIT
+
+    mode = "hanging" if args.hanging else "balancing"
+    limits = (args.max_phi or rig.safety.phi_limit, args.max_theta or (SWING_LIMIT if args.hanging else rig.safety.theta_limit),
               args.max_u or rig.actuator.limit)
     passive = "" if alt.passive_t is None else f" (paired t {alt.passive_t:.1f} on the recording)"
     print(f"look-alike: {alt.named} ↔ {alt.rival}{passive}", flush=True)
@@ -84,25 +92,31 @@ def run_design(args: argparse.Namespace) -> int:
         print(f"  candidate {i}/{n}: {plan.segments[0].describe()}: expected t {sep:.1f}",  # type: ignore[attr-defined]
               file=sys.stderr, flush=True)
 
-    best, _ = design(rig, alt, args.budget, limits=limits, progress=progress)
+    best, _ = design(rig, alt, args.budget, limits=limits, progress=progress, mode=mode)
     plan = best.plan
     note = f"separates {alt.named} from {alt.rival}: expected {best.test} {best.separation:.1f}"
     plan = type(plan)(plan.segments, plan.mode, plan.settle_s, plan.return_speed, note)
     write_text(args.output, plan.to_toml(), overwrite=args.force, flag="-o")
     total = plan.settle_s + plan.duration
-    print(f"plan {args.output}: {total:.1f} s while balancing (settle {plan.settle_s:g} s, then):")
+    how = "hanging, open loop" if args.hanging else "while balancing"
+    print(f"plan {args.output}: {total:.1f} s {how} (settle {plan.settle_s:g} s, then):")
     for line in plan.describe():
         print(f"  {line}")
     print(f"expected separation: {best.test} {best.separation:.1f} ({alt.named} true: {best.separation_ab[0]:.1f}, "
           f"{alt.rival} true: {best.separation_ab[1]:.1f}; diagnose's own test on simulated recordings of the plan, "
           f"≥ {best.threshold:g} tells them apart)")
-    print(f"worst under either: |φ| {best.peak_phi:.3f} rad (limit {limits[0]:g}), |θ| {best.peak_theta:.4f} rad "
+    print(f"worst under either: |φ| {best.peak_phi:.3f} rad (limit {limits[0]:g}), "
+          f"{'|θ − π|' if args.hanging else '|θ|'} {best.peak_theta:.4f} rad "
           f"(limit {limits[1]:g}), |u| {best.peak_u:.3f} (limit {limits[2]:g})")
     if best.separation < best.threshold:
         need = args.budget * (best.threshold / max(best.separation, 1e-3)) ** 2
         print(f"warning: expected {best.test} {best.separation:.1f} is below {best.threshold:g}: this plan is not "
               f"expected to tell them "
               f"apart; a budget of about {need:.0f} s (t grows as the square root of the length) or looser limits")
-    print(f"next: furuta-rt run --port DEV --experiment {args.output} --log experiment.mcap, then "
-          "furuta-rt diagnose RUN.mcap experiment.mcap (the joint fit of both)")
+    if args.hanging:
+        print("next: run the plan's torque open loop with the pendulum hanging (this version's `run --experiment` runs "
+              "balancing plans only), then furuta-rt diagnose RUN.mcap its-recording (the joint fit of both)")
+    else:
+        print(f"next: furuta-rt run --port DEV --experiment {args.output} --log experiment.mcap, then "
+              "furuta-rt diagnose RUN.mcap experiment.mcap (the joint fit of both)")
     return 0

@@ -247,6 +247,10 @@ def _experiment_plan(args: argparse.Namespace, rig: RigConfig, rate: int) -> obj
     from furuta_rt.experiment.plan import check_plan_limits, load_plan
 
     plan = load_plan(args.experiment)
+    if plan.mode != "balancing":
+        raise UserError(f"--experiment {args.experiment}: a {plan.mode} plan (open loop) is designed and simulated by "
+                        "`furuta-rt experiment design --hanging`, not run by this version: `run --experiment` runs "
+                        "plans while balancing")
     try:
         check_plan_limits(plan, u_limit=rig.actuator.limit, phi_limit=rig.safety.phi_limit)
     except UserError as err:

@@ -29,6 +29,7 @@ import numpy as np
 
 from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
+from furuta_rt.experiment import hanging
 from furuta_rt.experiment.plan import Excitation, Plan, Segment
 from furuta_rt.model.effects import Effects
 
@@ -127,9 +128,11 @@ def _noise_free(rig: RigConfig) -> RigConfig:
 
 
 def _simulate(rig: RigConfig, effects: dict[str, dict[str, float]], plan: Plan, seed: int) -> Any:
-    """The plan under ``effects``, from rest upright (no arming transient), noise-free."""
+    """The plan under ``effects``, from rest upright (no arming transient) or hanging, noise-free."""
     from furuta_rt.sim.closed_loop import run_closed_loop
 
+    if plan.mode == "hanging":
+        return hanging.simulate(rig, effects, plan, seed, substep_hz=SUBSTEP_HZ, noise=False)
     exc = Excitation(plan, rig.control.rate_hz)
     return run_closed_loop(_noise_free(rig), exc.ticks / rig.control.rate_hz, effects=Effects.model_validate(effects),
                            excitation=exc, seed=seed, substep_hz=SUBSTEP_HZ, x0=(0.0, 0.0, 0.0, 0.0))
@@ -176,6 +179,8 @@ def _recording(rig: RigConfig, effects: dict[str, dict[str, float]], plan: Plan,
     """The plan under ``effects`` with the rig's sensor noise (seeded): what the rig would record, settling included."""
     from furuta_rt.sim.closed_loop import run_closed_loop
 
+    if plan.mode == "hanging":
+        return hanging.simulate(rig, effects, plan, seed, substep_hz=SUBSTEP_HZ)
     exc = Excitation(plan, rig.control.rate_hz)
     return run_closed_loop(rig, exc.ticks / rig.control.rate_hz, effects=Effects.model_validate(effects),
                            excitation=exc, seed=seed, substep_hz=SUBSTEP_HZ, x0=(0.0, 0.0, 0.0, 0.0))
@@ -208,24 +213,31 @@ def calibrated_score(rig: RigConfig, alt: Alternatives, plan: Plan, seed: int = 
 
 
 def peaks(rig: RigConfig, alt: Alternatives, plan: Plan, seed: int = 0) -> tuple[float, float, float]:
-    """Worst |φ|, |θ|, |u| of the whole plan under either alternative (settling and the return included)."""
+    """Worst |φ|, |θ| (hanging: |θ − π|), |u| of the whole plan under either alternative (settling and the return
+    included)."""
     out = [0.0, 0.0, 0.0]
     for effects in (alt.a, alt.b):
         rec = _simulate(rig, effects, plan, seed)
-        for i, x in enumerate((rec.phi, rec.theta, rec.u)):
-            out[i] = max(out[i], float(np.max(np.abs(x))))
+        theta = hanging.swing(rec.theta) if plan.mode == "hanging" else float(np.max(np.abs(rec.theta)))
+        for i, x in enumerate((float(np.max(np.abs(rec.phi))), theta, float(np.max(np.abs(rec.u))))):
+            out[i] = max(out[i], x)
     return out[0], out[1], out[2]
 
 
 def design(rig: RigConfig, alt: Alternatives, budget_s: float, *, eval_s: float = 8.0,
            limits: tuple[float, float, float] | None = None, plans: list[Plan] | None = None,
-           progress: Any = None, seed: int = 0) -> tuple[Prediction, list[tuple[Plan, float]]]:
+           progress: Any = None, seed: int = 0, mode: str = "balancing") -> tuple[Prediction, list[tuple[Plan, float]]]:
     """The candidate with the largest expected decisive statistic (calibrated_score on its first ``eval_s`` seconds,
     scaled by √(budget/eval_s): both statistics grow as the square root of the rows) that keeps within ``limits``
     (|φ|, |θ|, |u|; default the rig's); all candidates' scores, best first. Raises UserError if no candidate keeps
-    within the limits."""
-    phi_lim, theta_lim, u_lim = limits or (rig.safety.phi_limit, rig.safety.theta_limit, rig.actuator.limit)
-    family = plans if plans is not None else candidate_plans(rig, budget_s)
+    within the limits. ``mode`` "hanging": the family of experiment.hanging, |θ| measured from hanging (default
+    limit hanging.SWING_LIMIT)."""
+    swing_lim = hanging.SWING_LIMIT if mode == "hanging" else rig.safety.theta_limit
+    phi_lim, theta_lim, u_lim = limits or (rig.safety.phi_limit, swing_lim, rig.actuator.limit)
+    if plans is not None:
+        family = plans
+    else:
+        family = hanging.candidate_plans(rig, budget_s) if mode == "hanging" else candidate_plans(rig, budget_s)
     scored: list[tuple[Plan, float, tuple[float, float], dict]] = []
     for i, plan in enumerate(family):
         short = _shortened(plan, eval_s)

@@ -61,7 +61,7 @@ import numpy as np
 
 from furuta_rt.errors import UserError
 
-MODES = ("balancing",)
+MODES = ("balancing", "hanging")  # hanging: open loop about θ = π, the torque segments only (experiment.hanging)
 REFERENCE_KINDS = ("hold", "step", "ramp", "sweep")
 TORQUE_KINDS = ("chirp", "dither")
 KINDS = REFERENCE_KINDS + TORQUE_KINDS
@@ -159,7 +159,7 @@ def plan_from_dict(data: dict[str, Any], source: str = "plan") -> Plan:
         raise UserError(f"{source}: unknown key {unknown[0]!r} (a plan has {', '.join(sorted(known))})")
     mode = data.get("mode", "balancing")
     if mode not in MODES:
-        raise UserError(f"{source}: mode = {mode!r}: this version runs plans while balancing (mode = \"balancing\")")
+        raise UserError(f"{source}: mode = {mode!r}; one of {', '.join(MODES)}")
     settle = _number(source, "settle_s", data.get("settle_s", 2.0), nonneg=True)
     ret = _number(source, "return_speed", data.get("return_speed", 0.5), positive=True)
     raw = data.get("segment")
@@ -173,6 +173,9 @@ def plan_from_dict(data: dict[str, Any], source: str = "plan") -> Plan:
         kind = seg.get("kind")
         if kind not in KINDS:
             raise UserError(f"{where}: kind = {kind!r}; one of {', '.join(KINDS)}")
+        if mode == "hanging" and kind in REFERENCE_KINDS and kind != "hold":
+            raise UserError(f"{where}: kind = {kind!r} moves the arm reference, which a hanging plan (open loop) does "
+                            "not have; hanging plans take chirp, dither and hold")
         required, optional = _KEYS[kind]
         extra = sorted(set(seg) - {"kind", "duration", *required, *optional})
         if extra:
