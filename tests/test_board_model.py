@@ -15,8 +15,10 @@ from __future__ import annotations
 import itertools
 import math
 import os
+import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -450,3 +452,18 @@ def test_the_default_image_has_no_pendulum_encoder(image: Path) -> None:
     """The analog-θ image leaves TIM4 off: its θ is PA4's ADC reading."""
     samples = _samples_with(image, 2048 + 700, 2048, ticks=1)
     assert samples[0].theta_adc == 700
+
+
+def test_the_uart_interrupt_load_is_priced_from_the_image(image: Path) -> None:
+    """scripts/firmware_uart_load runs the image on the model and prices what it executes with firmware_ticks' model:
+    one USART2 interrupt per byte each way (a short straight path: 30–200 cycles with entry and exit), a SAMPLE
+    of 23 bytes leaving in 23 interrupts and the one that finds the ring empty, and the load at 100 bytes per ms
+    each way is 100 × (received + sent)."""
+    res = subprocess.run([sys.executable, str(ROOT / "scripts" / "firmware_uart_load"), str(image)],
+                         capture_output=True, text=True, timeout=120, check=False)
+    assert res.returncode == 0, res.stderr
+    m = re.search(r"interrupt (\d+) per byte received, (\d+) per byte sent; .* in (\d+) interrupts\)\n.*: (\d+) cycles "
+                  r"per ms", res.stdout)
+    assert m, res.stdout
+    rx, tx, calls, load = (int(g) for g in m.groups())
+    assert 30 <= rx <= 200 and 30 <= tx <= 200 and calls == 24 and load == 100 * (rx + tx)

@@ -61,6 +61,7 @@ WFI = 0xBF30
 DBGMCU_IDCODE, DBGMCU_CR, DBGMCU_APB1_FZ, DBGMCU_APB2_FZ = 0xE0042000, 0xE0042004, 0xE0042008, 0xE004200C
 IDCODE_F401 = 0x10006433  # REV_ID 0x1000, DEV_ID 0x433 (STM32F401xD/E)
 FRAME_REGS = (UC_ARM_REG_R0, UC_ARM_REG_R1, UC_ARM_REG_R2, UC_ARM_REG_R3, UC_ARM_REG_R12, UC_ARM_REG_LR)
+ENTRY_REGS = (*FRAME_REGS, UC_ARM_REG_PC, UC_ARM_REG_XPSR, UC_ARM_REG_SP)
 
 
 def load_elf(path: Path) -> tuple[list[tuple[int, bytes]], dict[str, int]]:
@@ -197,6 +198,17 @@ class Stm32f401:
             self.uc.hook_add(UC_HOOK_CODE, self._on_stall, begin=addr, end=addr)
         self._stalls[addr] = [ns, times]
 
+    def trace(self) -> list[int]:
+        """Record the address of every instruction executed in flash from now on (the list returned fills) until
+        ``untrace``: the executed sequence scripts/firmware_ticks.py's cycle model prices. Not across a reset."""
+        pcs: list[int] = []
+        self._trace_hook = self.uc.hook_add(UC_HOOK_CODE, lambda uc, addr, size, user: pcs.append(addr),
+                                            begin=FLASH_BASE, end=FLASH_BASE + FLASH_SIZE - 1)
+        return pcs
+
+    def untrace(self) -> None:
+        self.uc.hook_del(self._trace_hook)
+
     def _on_stall(self, uc: Uc, address: int, size: int, user: object) -> None:
         entry = self._stalls[address]
         if entry[1] == 0:
@@ -325,6 +337,8 @@ class Stm32f401:
 
     def _next_irq(self) -> int | None:
         """The pending, enabled line of highest priority (lowest number) that pre-empts the running code."""
+        if True not in self.nvic_pending:
+            return None
         prio = self._execution_priority()
         ready = [i for i, p in enumerate(self.nvic_pending) if p and self.nvic_enabled[i] and self.nvic_priority[i] < prio]
         return min(ready, key=lambda i: (self.nvic_priority[i], i)) if ready else None
@@ -344,15 +358,12 @@ class Stm32f401:
         """Exception entry, run the handler to its return, exception return (pre-empted by higher lines)."""
         uc = self.uc
         vector = struct.unpack("<I", uc.mem_read(FLASH_BASE + 4 * exc, 4))[0]
-        sp = self._reg(UC_ARM_REG_SP)
-        xpsr = self._reg(UC_ARM_REG_XPSR)
-        pc = self._reg(UC_ARM_REG_PC)
+        *saved, pc, xpsr, sp = uc.reg_read_batch(ENTRY_REGS)  # one call: the emulator's register API is the cost
         align = sp & 4
         sp = (sp - align) - 32
-        frame = [self._reg(r) for r in FRAME_REGS] + [pc | 0, (xpsr | (1 << 9 if align else 0)) | (1 << 24)]
+        frame = [*saved, pc, (xpsr | (1 << 9 if align else 0)) | (1 << 24)]
         uc.mem_write(sp, struct.pack("<8I", *frame))
-        uc.reg_write(UC_ARM_REG_SP, sp)
-        uc.reg_write(UC_ARM_REG_LR, SENTINEL | 1)
+        uc.reg_write_batch(((UC_ARM_REG_SP, sp), (UC_ARM_REG_LR, SENTINEL | 1)))
         if exc >= 16:
             self.nvic_pending[exc - 16] = False
         self.active.append(exc)
@@ -360,11 +371,9 @@ class Stm32f401:
         self.active.pop()
         sp = self._reg(UC_ARM_REG_SP)
         regs = struct.unpack("<8I", uc.mem_read(sp, 32))
-        for r, v in zip(FRAME_REGS, regs[:6], strict=True):
-            uc.reg_write(r, v)
-        uc.reg_write(UC_ARM_REG_SP, sp + 32 + (4 if regs[7] >> 9 & 1 else 0))
-        uc.reg_write(UC_ARM_REG_PC, regs[6] | 1)
-        uc.reg_write(UC_ARM_REG_XPSR, (regs[7] & 0xF80F0000) | (self.active[-1] if self.active else 0) | (1 << 24))
+        uc.reg_write_batch((*zip(FRAME_REGS, regs[:6], strict=True),
+                            (UC_ARM_REG_SP, sp + 32 + (4 if regs[7] >> 9 & 1 else 0)), (UC_ARM_REG_PC, regs[6] | 1),
+                            (UC_ARM_REG_XPSR, (regs[7] & 0xF80F0000) | (self.active[-1] if self.active else 0) | (1 << 24))))
         self._relevel()
 
     def _relevel(self) -> None:
