@@ -342,6 +342,7 @@ class DaemonRun:
     steal: float  # fraction of CPU time stolen by the hypervisor during the run
     rss_kb: list[tuple[float, int]]  # (s since ticking started, VmRSS) of the control process
     logger_rss_kb: list[tuple[float, int]]
+    mock_rss_kb: list[tuple[float, int]]
     peak_rss_kb: int | None
     attribution: dict[str, Any]
     loadavg: list[float]
@@ -416,6 +417,7 @@ def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = Tru
         t_last = t0
         rss: list[tuple[float, int]] = []
         lrss: list[tuple[float, int]] = []
+        mrss: list[tuple[float, int]] = []
         peak = None
         while proc.poll() is None:
             now = time.monotonic()
@@ -432,6 +434,8 @@ def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = Tru
                     peak = proc_status_kb(proc.pid, "VmHWM")
                 if "logger" in pids and (r := proc_status_kb(pids["logger"], "VmRSS")) is not None:
                     lrss.append((now - t0, r))
+                if "mock" in pids and (r := proc_status_kb(pids["mock"], "VmRSS")) is not None:
+                    mrss.append((now - t0, r))
             time.sleep(sample_s)
         for t in threads:
             t.join(5.0)
@@ -444,7 +448,7 @@ def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = Tru
         mock = json.loads((d / "mock.json").read_text()) if (d / "mock.json").exists() else {}
         run = DaemonRun(rate, seconds, proc.returncode, summary, mock, shares,
                         (busy1 - busy0) / max(total1 - total0, 1), (steal1 - steal0) / max(total1 - total0, 1),
-                        rss, lrss, peak, attribute_misses(d / "run.mcap", rate) if log else {},
+                        rss, lrss, mrss, peak, attribute_misses(d / "run.mcap", rate) if log else {},
                         [round(x, 2) for x in os.getloadavg()])
     _RUNS[key] = run
     return run
@@ -1020,14 +1024,18 @@ def bench_diagnose(quick: bool) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------------- memory
+MEMORY_MINUTES: float | None = None  # scripts/bench --memory-minutes
+
+
 @section("memory")
 def bench_memory(quick: bool) -> dict[str, Any]:
-    """RSS of the daemon's control process over a 1 kHz run (quick: the 60 s closed-loop run; full:
-    10 minutes), sampled from /proc; slope fitted after the first 10 s (start-up), peak = VmHWM."""
-    seconds = 60.0 if quick else 600.0
+    """RSS of the daemon's control, logger and hil-mock processes over a 1 kHz run (quick: the 60 s closed-loop
+    run; full: 10 minutes; ``--memory-minutes``: that long), sampled from /proc; slope fitted after the first 10 s
+    (start-up), peak = VmHWM."""
+    seconds = MEMORY_MINUTES * 60.0 if MEMORY_MINUTES else (60.0 if quick else 600.0)
     run = daemon_run(1000, seconds, sample_s=1.0 if quick else 5.0)
     out: dict[str, Any] = {"seconds": seconds, "end": run.summary["end"]}
-    for name, series in (("control", run.rss_kb), ("logger", run.logger_rss_kb)):
+    for name, series in (("control", run.rss_kb), ("logger", run.logger_rss_kb), ("mock", run.mock_rss_kb)):
         pts = np.array([(t, kb) for t, kb in series if t >= 10.0], dtype=float)
         if len(pts) < 3:
             out[name] = {"samples": len(pts)}
@@ -1213,6 +1221,11 @@ def table(res: dict[str, Any]) -> list[dict[str, Any]]:
             row(f"logger process RSS over {mm['seconds'] / 60:g} min at 1 kHz",
                 f"{lg['first_kb'] / 1024:.1f} → {lg['last_kb'] / 1024:.1f} MB, slope {lg['slope_kb_per_min']:+.0f} kB/min",
                 "its RSS", f"{100 * lg['growth_per_hour_fraction']:+.1f}% per hour")
+        mk = mm.get("mock", {})
+        if "slope_kb_per_min" in mk:
+            row(f"hil-mock process RSS over {mm['seconds'] / 60:g} min at 1 kHz",
+                f"{mk['first_kb'] / 1024:.1f} → {mk['last_kb'] / 1024:.1f} MB, slope {mk['slope_kb_per_min']:+.0f} kB/min",
+                "its RSS", f"{100 * mk['growth_per_hour_fraction']:+.1f}% per hour")
     return rows
 
 
@@ -1243,7 +1256,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", metavar="OUT", help="write one JSON object with every figure")
     ap.add_argument("--force", action="store_true", help="replace an existing --json OUT (refused before any run without it)")
     ap.add_argument("--only", metavar="A,B", help=f"sections to run: {', '.join(SECTIONS)}")
+    ap.add_argument("--memory-minutes", type=float, metavar="M", help="the memory section's run length (e.g. 30)")
     args = ap.parse_args(argv)
+    global MEMORY_MINUTES
+    MEMORY_MINUTES = args.memory_minutes
     names = args.only.split(",") if args.only else list(SECTIONS)
     unknown = [n for n in names if n not in SECTIONS]
     if unknown:
