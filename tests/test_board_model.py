@@ -467,3 +467,33 @@ def test_the_uart_interrupt_load_is_priced_from_the_image(image: Path) -> None:
     assert m, res.stdout
     rx, tx, calls, load = (int(g) for g in m.groups())
     assert 30 <= rx <= 200 and 30 <= tx <= 200 and calls == 24 and load == 100 * (rx + tx)
+
+
+def _word(mcu, symbol: str) -> int:  # type: ignore[no-untyped-def]
+    return int.from_bytes(mcu.uc.mem_read(mcu.symbols[symbol], 4), "little")
+
+
+def test_the_reset_cause_is_kept_for_a_debugger(image: Path) -> None:
+    """The image keeps RCC_CSR's reset flags of its start in `reset_flags` and clears them, so the next reset's are
+    its own: power-on first (POR, PIN, BOR); then, the tick's interrupt masked (a hung tick), the IWDG resets the
+    board within its 51 ms and `reset_flags` says so (IWDG, PIN) without the power-on flag."""
+    mcu, _ = _streaming(image)
+    assert _word(mcu, "reset_flags") == 0x0E000000 and mcu.rcc.regs[mcu.rcc.CSR] & 0xFE000000 == 0
+    mcu.nvic_enabled[50] = False
+    t = mcu.clock.now_ns
+    mcu.advance_to(t + 60_000_000)
+    assert mcu.watchdog_resets == 1 and _word(mcu, "reset_flags") == 0x24000000
+
+
+def test_uart_errors_are_counted_not_cleared_silently(image: Path) -> None:
+    """A byte with a framing error, one with noise, and two bytes arriving before the first was read (an overrun):
+    the USART interrupt counts them (`uart_line_errors` 2, `uart_overruns` 1) where it used to clear them unseen."""
+    mcu, _ = _streaming(image)
+    assert (_word(mcu, "uart_line_errors"), _word(mcu, "uart_overruns")) == (0, 0)
+    for errors in (1 << 1, 1 << 2):  # FE, NF
+        mcu.usart.receive(0x55, errors)
+        mcu.deliver()
+    mcu.usart.receive(0x11)
+    mcu.usart.receive(0x22)  # before the interrupt read 0x11: ORE
+    mcu.deliver()
+    assert (_word(mcu, "uart_line_errors"), _word(mcu, "uart_overruns")) == (2, 1)

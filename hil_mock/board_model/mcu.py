@@ -115,13 +115,14 @@ class Stm32f401:
         self.resets = 0
         self.watchdog_resets = 0
         self.on_reset: Callable[[], None] | None = None
+        self._reset_flags = 0x0E000000  # RCC_CSR at the next reset: power-on
         self._stalls: dict[int, list[int]] = {}  # code address → [device ns it takes, calls left (-1: all)]
         self.dbgmcu = {DBGMCU_CR: 0, DBGMCU_APB1_FZ: 0, DBGMCU_APB2_FZ: 0}  # debug domain: kept across a system reset
         self._build()
 
     # ------------------------------------------------------------ construction
     def _build(self) -> None:
-        self.rcc = Rcc(self.hse_hz)
+        self.rcc = Rcc(self.hse_hz, self._reset_flags)
         self.gpioa = Gpio("GPIOA", 0x40020000, 0, 0xA8000000, 0x0C000000, 0x64000000)
         self.gpiob = Gpio("GPIOB", 0x40020400, 1, 0x00000280, 0x000000C0, 0x00000100)
         self.tim2 = Timer("TIM2", 0x40000000, 0, 32, self.clock, None, self.raise_irq)
@@ -426,8 +427,13 @@ class Stm32f401:
             self._take(16 + irq)
 
     # ------------------------------------------------------------ the board's life
-    def reset(self) -> None:
-        """Power-on/watchdog reset: registers to their reset values, RAM kept, run from the reset vector to idle."""
+    def reset(self, cause: str = "power") -> None:
+        """A reset (``cause``: "power" the first time, "watchdog" when the IWDG expires, "pin" the reset button):
+        registers to their reset values, RCC_CSR's flags set as the cause sets them (and kept until the firmware
+        clears them), run from the reset vector to idle."""
+        if self.resets:
+            kept = self.rcc.regs[Rcc.CSR] & Rcc.RESET_FLAGS
+            self._reset_flags = kept | {"power": 0x0E000000, "watchdog": 0x24000000, "pin": 0x04000000}[cause]
         self.uc.emu_stop()
         cyc = self.cycles()
         uc_old = getattr(self, "uc", None)
@@ -462,7 +468,7 @@ class Stm32f401:
             if t_wdg is not None and t_next == t_wdg:
                 self.watchdog_resets += 1
                 self.halted = False
-                self.reset()
+                self.reset("watchdog")
                 continue
             self.tim5.update_event(t_next)
             if not self.halted:

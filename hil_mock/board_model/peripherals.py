@@ -60,11 +60,14 @@ class Rcc(Peripheral):
     1–2 MHz, the VCO 192–432 MHz, SYSCLK the 84 MHz the model's timers count at."""
 
     name = "RCC"
-    CR, PLLCFGR, CFGR, AHB1ENR, APB1ENR, APB2ENR = 0x00, 0x04, 0x08, 0x30, 0x40, 0x44
+    CR, PLLCFGR, CFGR, AHB1ENR, APB1ENR, APB2ENR, CSR = 0x00, 0x04, 0x08, 0x30, 0x40, 0x44, 0x74
     HSI_HZ, SYSCLK_HZ = 16_000_000, 84_000_000
+    RESET_FLAGS = 0xFE000000  # CSR: LPWR, WWDG, IWDG, SFT, POR, PIN, BOR reset flags (bits 31..25)
 
-    def __init__(self, hse_hz: int | None = None) -> None:
-        super().__init__(0x40023800, {0x00: 0x83, 0x04: 0x24003010, 0x08: 0, 0x30: 0, 0x40: 0, 0x44: 0})
+    def __init__(self, hse_hz: int | None = None, reset_flags: int = 0x0E000000) -> None:
+        """``reset_flags``: CSR's flags at this reset (power-on: POR, PIN, BOR)."""
+        super().__init__(0x40023800, {0x00: 0x83, 0x04: 0x24003010, 0x08: 0, 0x30: 0, 0x40: 0, 0x44: 0,
+                                      self.CSR: reset_flags & self.RESET_FLAGS})
         self.hse_hz = hse_hz
 
     def read(self, off: int) -> int:
@@ -81,6 +84,9 @@ class Rcc(Peripheral):
             raise ModelError("board model: RCC_CR HSEBYP changed with the HSE on (RM0368: only while HSEON = 0)")
         if off == self.CFGR and value & 3 == 2:
             self.check_pll()
+        if off == self.CSR:  # RMVF clears the reset flags; LSIRDY follows LSION
+            flags = 0 if value >> 24 & 1 else self.regs[self.CSR] & self.RESET_FLAGS
+            value = flags | (value & 1) | ((value & 1) << 1)
         super().write(off, value)
 
     def pll_source_hz(self) -> int:
@@ -326,7 +332,8 @@ class Usart(Peripheral):
         sr, cr1 = self.regs[self.SR], self.regs[self.CR1]
         return bool((sr & self.TXE and cr1 & (1 << 7)) or (sr & (self.RXNE | self.ORE) and cr1 & (1 << 5)))
 
-    def receive(self, byte: int) -> None:
+    def receive(self, byte: int, errors: int = 0) -> None:
+        """A byte at the receiver; ``errors``: its PE/FE/NF bits (SR bits 0..2), as a line fault leaves them."""
         if not self.regs[self.CR1] & (1 << 13) or not self.regs[self.CR1] & (1 << 2):
             self.rx_lost += 1  # UE/RE off: the byte is not received
             return
@@ -335,7 +342,7 @@ class Usart(Peripheral):
             self.rx_lost += 1
         else:
             self.regs[self.DR] = byte
-            self.regs[self.SR] |= self.RXNE
+            self.regs[self.SR] |= self.RXNE | (errors & 7)
         if self.line():
             self.raise_irq(IRQ_USART2)
 

@@ -61,6 +61,11 @@ struct fw_hal {
 
 static fw_hal_t hal;
 static fw_t fw;
+/* For a debugger (FIRMWARE.md, bring-up), until the protocol carries them: RCC_CSR's reset flags at start-up
+ * (1 << 29: the IWDG reset the board, 1 << 27: power-on, 1 << 26: the reset pin), and the receiver's errors the
+ * USART reported (bytes lost to an overrun; framing, noise and parity errors) */
+static volatile uint32_t reset_flags;
+static volatile uint32_t uart_overruns, uart_line_errors;
 static const fw_board_t board = {
     0u, /* device_id: from the MCU's unique id at start-up, see main() */
     BOARD_DEFAULT_RATE_HZ,
@@ -216,6 +221,12 @@ void TIM5_IRQHandler(void)
 void USART2_IRQHandler(void)
 {
     uint32_t sr = USART2_SR;
+    if (sr & USART_SR_ORE) {
+        uart_overruns++;
+    }
+    if (sr & (USART_SR_FE | USART_SR_NF | USART_SR_PE)) {
+        uart_line_errors++; /* the byte is passed on: its frame fails the CRC */
+    }
     if (sr & (USART_SR_RXNE | USART_SR_ORE)) {
         uint8_t byte = (uint8_t)USART2_DR; /* also clears ORE */
         if (!ring_put(&hal.rx, byte)) {
@@ -386,6 +397,8 @@ static void hardware_watchdog(void)
 
 int main(void)
 {
+    reset_flags = RCC_CSR & RCC_CSR_RESET_FLAGS;
+    RCC_CSR |= RCC_CSR_RMVF; /* the next reset's flags alone */
     hal.clock_source_hz = clock_84mhz();
     board_with_id = board;
     board_with_id.device_id = REG32(UID_BASE) ^ REG32(UID_BASE + 4u) ^ REG32(UID_BASE + 8u);
