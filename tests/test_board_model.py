@@ -497,3 +497,22 @@ def test_uart_errors_are_counted_not_cleared_silently(image: Path) -> None:
     mcu.usart.receive(0x22)  # before the interrupt read 0x11: ORE
     mcu.deliver()
     assert (_word(mcu, "uart_line_errors"), _word(mcu, "uart_overruns")) == (2, 1)
+
+
+def test_no_stale_conversion_waits_for_the_next_tick(image: Path) -> None:
+    """TIM5's UG (at start-up, and at a rate change inside a tick) is an update event, hence a TRGO and a conversion
+    outside any tick's instant. Its JEOC must not be left set: on the silicon the next tick would take it for its own
+    conversion's (which ends 6.5 µs after the update) and read that stale θ. After boot and after the CONFIG tick, no
+    conversion is pending; the next tick's θ is the one at its update."""
+    from firmware_protocol import Config
+
+    mcu, dec = _streaming(image)
+    jeoc = 1 << 2
+    assert not mcu.adc.regs[mcu.adc.SR] & jeoc
+    mcu.advance_to(mcu.next_tick_ns())
+    mcu.receive(encode(Config(1000, 20)))
+    mcu.adc_code = lambda ch: 2048 + 300 if ch == 4 else 2048  # θ moves after the CONFIG's conversion
+    mcu.advance_to(mcu.next_tick_ns())  # the CONFIG tick: hal_tick_rate's UG converts
+    assert not mcu.adc.regs[mcu.adc.SR] & jeoc, "a conversion of the rate change is left for the next tick"
+    mcu.advance_to(mcu.next_tick_ns())
+    assert _new_samples(mcu, dec)[-1].theta_adc == 300

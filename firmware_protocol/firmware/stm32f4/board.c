@@ -128,6 +128,16 @@ static void latch_adc(fw_hal_t *h)
     h->theta_dot = adc_counts(ADC1_JDR2);
 }
 
+/* A UG of TIM5 is an update event, hence a TRGO and a conversion outside the tick's instant: wait for it to end and
+ * drop it, so the next tick does not take its JEOC (set early) for its own conversion's and read a stale θ. */
+static void discard_conversion(void)
+{
+    uint32_t n = 0u;
+    while (!(ADC1_SR & ADC_SR_JEOC) && ++n <= ADC_WAIT_LOOPS) {
+    }
+    ADC1_SR = ~(ADC_SR_JEOC | ADC_SR_JSTRT);
+}
+
 #if BOARD_THETA_ENCODER_CPR
 /* θ from the pendulum's encoder: TIM4 counts 0..CPR-1 from where the pendulum hung at power-up (θ = π), so upright
  * is CPR/2 and the reading is the count minus that. */
@@ -170,11 +180,12 @@ void hal_tick_rate(fw_hal_t *h, uint16_t rate_hz)
     /* ARR is preloaded (ARPE): a value below the running count can never be in force, which would run the counter
      * to its 32-bit wrap (51 s without a tick). The core counts the new period from this tick, so it takes effect
      * now: UG transfers it (URS: no update interrupt), and the count goes back to where it was, or to the last count
-     * of the new period when the tick has already run longer than that (the next tick at once) */
+     * of the new period when the tick has already run longer than that (its update comes at once: an overrun) */
     TIM_ARR(TIM5_BASE) = arr;
     cnt = TIM_CNT(TIM5_BASE);
     TIM_EGR(TIM5_BASE) = TIM_EGR_UG;
     TIM_CNT(TIM5_BASE) = cnt < arr ? cnt : arr;
+    discard_conversion();
 }
 
 void hal_session_started(fw_hal_t *h, uint8_t new_session)
@@ -407,6 +418,7 @@ int main(void)
     hardware_watchdog();
     TIM_EGR(TIM5_BASE) = TIM_EGR_UG;
     TIM_SR(TIM5_BASE) = 0u;
+    discard_conversion();
     TIM_CR1(TIM5_BASE) |= TIM_CR1_CEN;
     for (;;) {
         __asm__ volatile("wfi");
