@@ -388,6 +388,8 @@ def totals(scores: list[CaseScore]) -> dict:
         "detection_rate_incl_lookalike": (strict + alt) / injected if injected else float("nan"),
         "false_discoveries": sum(len(s.false) for s in scores),
         "false_discoveries_null_cases": sum(len(s.false) for s in nulls),
+        "cases_with_false": sum(bool(s.false) for s in scores),
+        "false_alarm_rate": sum(bool(s.false) for s in scores) / len(scores) if scores else float("nan"),
         "null_cases": len(nulls),
         "fit_improved": sum(s.improved for s in with_effect), "cases_with_effect": len(with_effect),
         "fit_verdicts": {v: sum(s.fit_verdict == v for s in with_effect) for v in ("improved", "unchanged", "worse", "diverges")},
@@ -400,6 +402,16 @@ def totals(scores: list[CaseScore]) -> dict:
         "null_equations_consistent": sum(v == "consistent" for s in nulls for v in s.verdicts.values()),
         "null_equations": sum(len(s.verdicts) for s in nulls),
     }
+
+
+def rates(detected: int, injected: int, cases_with_false: int, cases: int) -> str:
+    """The detection rate and the false-alarm rate side by side, as every benchmark group prints them: detection =
+    injected effects named (main parameter within 20 %) over those injected; false alarm = cases where at least one
+    effect that was not injected is named, over the cases."""
+    det = (f"detection {detected}/{injected} = {100 * detected / injected:.0f} %" if injected else
+           "detection n/a (nothing injected)")
+    fa = f"false alarms {cases_with_false}/{cases} cases = {100 * cases_with_false / cases:.0f} %" if cases else "no cases"
+    return f"{det}; {fa}"
 
 
 def write_json(path: Path, scores: list[CaseScore], extra: dict | None = None) -> None:

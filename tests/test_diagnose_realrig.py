@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks.suite_realrig import HELD_ARM, driven_recording, square_pulses, swing_recording
 from furuta_rt.config import RigConfig, load_rig
 from furuta_rt.diagnose import Options, diagnose
 from furuta_rt.diagnose.judgement import verdict
@@ -19,50 +20,10 @@ from furuta_rt.diagnose.regression.states import prepare
 from furuta_rt.diagnose.stages import armlock, swing
 from furuta_rt.diagnose.stages.decay import free_decay
 from furuta_rt.io.mapping import load_mapping, read_mapped_csv
-from furuta_rt.model.effects import effects_from_assignments
-from furuta_rt.model.rig import RigModel
 from furuta_rt.recording import Recording
-from furuta_rt.sim.simulator import Simulator
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "macstepien-furuta"
-HELD_ARM = "arm_coulomb.Fc=0.5"  # a dry friction far above the pendulum's reaction: the arm stays put
 FAST = Options(closed_loop=False, max_windows=15)
-
-
-def swing_recording(rig: RigConfig, effects: list[str], rate: float, amplitude: float = 0.4, seconds: float = 20.0,
-                    seed: int = 0) -> Recording:
-    """The pendulum released ``amplitude`` rad from hanging, zero command, sampled at ``rate`` Hz through the rig's
-    own sensors (encoders with quantisation on the QUBE-Servo 2)."""
-    sim = Simulator(RigModel.from_config(rig, effects_from_assignments(effects)), rate, 5000.0, seed=seed,
-                    x0=(math.pi - amplitude, 0.0, 0.0, 0.0))
-    n = round(seconds * rate)
-    cols = np.empty((n, 4))
-    for k in range(n):
-        m = sim.measure()
-        cols[k] = (sim.t, m.theta, m.theta_dot, m.phi)
-        sim.advance()
-    return Recording(t=cols[:, 0], theta=cols[:, 1], theta_dot=cols[:, 2], phi=cols[:, 3], u=np.zeros(n))
-
-
-def driven_recording(rig: RigConfig, effects: list[str], rate: float, seconds: float, command, seed: int = 0) -> Recording:
-    """The rig from hanging at rest under the open-loop ``command(t)`` (volts), sampled at ``rate`` Hz."""
-    sim = Simulator(RigModel.from_config(rig, effects_from_assignments(effects)), rate, 5000.0, seed=seed,
-                    x0=(math.pi, 0.0, 0.0, 0.0))
-    n = round(seconds * rate)
-    cols = np.empty((n, 5))
-    for k in range(n):
-        m = sim.measure()
-        u = command(sim.t)
-        sim.set_command(u)
-        cols[k] = (sim.t, m.theta, m.theta_dot, m.phi, u)
-        sim.advance()
-    return Recording(t=cols[:, 0], theta=cols[:, 1], theta_dot=cols[:, 2], phi=cols[:, 3], u=cols[:, 4])
-
-
-def square_pulses(t: float, volts: float = 3.0) -> float:
-    """+V for 0.5 s, 0 V for 1 s, −V for 0.5 s, 0 V for 1 s (a home-built rig's open-loop test)."""
-    phase = t % 3.0
-    return volts if phase < 0.5 else -volts if 1.5 <= phase < 2.0 else 0.0
 
 
 def _read(rec: Recording, rig: RigConfig) -> tuple[swing.Swing, object]:
@@ -189,7 +150,7 @@ def test_a_short_50_hz_file_shows_the_arm_locking_at_zero_command(qube: RigConfi
     """Six seconds at 50 Hz of square pulses: after each pulse the arm stops and stays at one count while the
     pendulum swings and pulls it. diagnose runs and reports dry friction holding at least a torque that lies below
     the true breakaway (a lower bound: the pendulum's pull never reaches Fs) and is most of it."""
-    rec = driven_recording(qube, STICTION, 50.0, 6.0, square_pulses)
+    rec = driven_recording(qube, STICTION, 50.0, 6.0, square_pulses(3.0))
     d = diagnose(rec, qube, FAST)
     lock = d.to_json()["arm_rests"]
     assert lock is not None and lock["verdict"] == "dry friction", lock
@@ -200,7 +161,8 @@ def test_a_short_50_hz_file_shows_the_arm_locking_at_zero_command(qube: RigConfi
 def test_a_dead_band_without_friction_never_reads_as_dry_friction(qube: RigConfig) -> None:
     """The same pulses on an arm with a 1 V dead band and viscous friction only: the arm never rests against the
     pendulum's pull, so no dry friction is claimed."""
-    rec = driven_recording(qube, ["input_deadzone.width=1.0", "arm_viscous.Fv=2e-4"], 50.0, 6.0, square_pulses)
+    rec = driven_recording(qube, ["input_deadzone.width=1.0", "arm_viscous.Fv=2e-4"], 50.0, 6.0,
+                           square_pulses(3.0))
     lock = armlock.assess(prepare(rec, qube), qube)
     assert lock is None or lock.verdict != "dry friction", lock
 
@@ -219,7 +181,7 @@ def test_slow_small_sines_leave_dead_band_and_friction_alike(qube: RigConfig, ef
 def test_a_named_dead_band_meets_the_rests_that_need_friction(qube: RigConfig) -> None:
     """A dead band named while the rests at zero command show dry friction is declared as that friction's look-alike;
     with dry friction named too, nothing is added."""
-    lock = armlock.assess(prepare(driven_recording(qube, STICTION, 50.0, 6.0, square_pulses), qube), qube)
+    lock = armlock.assess(prepare(driven_recording(qube, STICTION, 50.0, 6.0, square_pulses(3.0)), qube), qube)
     entries = armlock.declare(lock, ["input_deadzone"], [], "a slow sweep")
     assert len(entries) == 1 and entries[0]["effects"] == ["input_deadzone", "arm_stiction"]
     assert "dead band may be that friction" in entries[0]["reason"]
