@@ -186,3 +186,29 @@ def test_a_named_dead_band_meets_the_rests_that_need_friction(qube: RigConfig) -
     assert len(entries) == 1 and entries[0]["effects"] == ["input_deadzone", "arm_stiction"]
     assert "dead band may be that friction" in entries[0]["reason"]
     assert armlock.declare(lock, ["input_deadzone", "arm_coulomb"], [], "a slow sweep") == []
+
+
+def test_a_fast_decaying_swing_is_a_loss(qube: RigConfig) -> None:
+    """A viscous decay from 1 rad at 50 Hz: its losses shrink fast (a large scatter about their mean) but every cycle
+    loses energy — a loss, sized within 10 %, not 'no measurable loss'."""
+    read, decay = _read(swing_recording(qube, ["pendulum_viscous.bp=8e-5", HELD_ARM], 50.0, amplitude=1.0, seed=25), qube)
+    assert decay.best == "viscous" and decay.fits["viscous"].bp == pytest.approx(8e-5, rel=0.1)
+    assert not read.lossless
+
+
+def test_a_frictionless_swing_names_no_loss(qube: RigConfig) -> None:
+    """A swing without pivot friction loses no energy beyond the reading's noise: no pivot friction is named."""
+    rec = swing_recording(qube, [HELD_ARM], 100.0, seconds=10.0, seed=16)
+    d = diagnose(rec, qube, FAST)
+    assert d.decay is not None and d.decay["best"] == "none", d.decay
+    assert not {"pendulum_viscous", "pendulum_coulomb"} & set(d.names)
+    assert any("no measurable loss" in n for n in d.notes)
+
+
+def test_a_rest_through_a_pulse_is_read_in_its_parts(qube: RigConfig) -> None:
+    """A rest that runs from zero command into a 4 V pulse the friction still holds: its zero-command part is read on its
+    own and shows dry friction (read whole, the pulse's 4 V made it a small-command rest: a dead band's look-alike)."""
+    rec = driven_recording(qube, ["arm_stiction.Fs=0.015", "arm_coulomb.Fc=0.01"], 100.0, 5.0, square_pulses(4.0), seed=18)
+    lock = armlock.assess(prepare(rec, qube), qube)
+    assert lock is not None and lock.verdict == "dry friction", lock
+    assert 0.5 * 0.015 < lock.at_zero < 1.1 * 0.015

@@ -118,19 +118,21 @@ def assess(prep: Prepared, rig: RigConfig) -> ArmLock | None:
     floor = HELD_Z * torque_noise(prep, rig, plant.p.gamma)
     edge = int(np.ceil(4 * SIGMA / prep.dt))  # the states' kernel reaches past the recording's ends there
     trim = int(np.ceil(TRIM_SIGMAS * SIGMA / prep.dt))  # ... and past a rest's ends into the motion around it
+    off = np.abs(acting) <= limit
     for a, b in spans:
         a0, b0 = max(a + trim, edge), min(b - trim, prep.n - edge)
-        if b0 - a0 < MIN_REST_SAMPLES:
-            continue
-        u = acting[a0:b0]
-        command = float(np.max(np.abs(u)))
-        command = 0.0 if command <= limit else command
-        # friction = what held it: reaction needed − actuator torque (zero command: the reaction alone)
-        friction = reaction[a0:b0] - (0.0 if command == 0.0 else torque0[a0:b0])
-        turn = _free_turn(-friction, inertia[a0:b0], damping, prep.dt)
-        level = float(np.percentile(np.abs(friction), 90))
-        if turn >= REST_COUNTS * prep.phi_lsb and level >= floor:
-            held.append(Rest(float(prep.t[a0]), float(prep.t[b0 - 1]), command, level, turn))
+        # a rest through a change of command (zero ↔ not): each part read on its own (no trim inside: the arm is still)
+        cuts = [a0, *(a0 + 1 + np.flatnonzero(off[a0 : b0 - 1] != off[a0 + 1 : b0])), b0]
+        for c0, c1 in itertools.pairwise(cuts):
+            if c1 - c0 < MIN_REST_SAMPLES:
+                continue
+            command = 0.0 if off[c0] else float(np.max(np.abs(acting[c0:c1])))
+            # friction = what held it: reaction needed − actuator torque (zero command: the reaction alone)
+            friction = reaction[c0:c1] - (0.0 if command == 0.0 else torque0[c0:c1])
+            turn = _free_turn(-friction, inertia[c0:c1], damping, prep.dt)
+            level = float(np.percentile(np.abs(friction), 90))
+            if turn >= REST_COUNTS * prep.phi_lsb and level >= floor:
+                held.append(Rest(float(prep.t[c0]), float(prep.t[c1 - 1]), command, level, turn))
     if not held:
         return None
     at_zero = max((r.held for r in held if r.zero_command), default=0.0)

@@ -26,12 +26,14 @@ from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.rig import PENDULUM_COULOMB_EPSILON
 
 MIN_CYCLES = 5
+LOSS_Z = 3.0  # a loss: the mean energy lost per cycle this many standard errors above zero ...
+SIGN_Z = 2.0  # ... or more cycles losing energy than gaining it, by this many standard deviations of a fair coin
 AMPLITUDE_RESOLUTIONS = 10.0  # a cycle counts when its amplitude is this many θ resolutions (LSB or noise)
 
 
 @dataclass(frozen=True)
 class DecayFit:
-    name: str  # "viscous" | "coulomb" | "both"
+    name: str  # "viscous" | "coulomb" | "both" | "none" (no measurable loss)
     bp: float
     Fc: float
     loo_rms: float  # leave-one-cycle-out rms relative error of the energy lost per cycle
@@ -112,7 +114,16 @@ def free_decay(prep: Prepared, rig: RigConfig, sigma: float = 0.005, stop_time: 
     # cycles that moved and lost energy (not a stuck tail), with an amplitude well above the θ sensor's resolution:
     # below it the energy lost is the reading's noise, which the relative weighting below would let dominate
     resolution = max(rig.sensors.theta_rad_per_count, rig.sensors.theta_noise)
-    keep = (R[:, 0] > 0) & (R[:, 2] > 0) & (np.asarray(amp) >= AMPLITUDE_RESOLUTIONS * resolution)
+    moved = (R[:, 2] > 0) & (np.asarray(amp) >= AMPLITUDE_RESOLUTIONS * resolution)
+    # a loss at all: the reading's noise gives losses and gains alike, a friction losses. Lossless when neither do the
+    # losses outnumber the gains (sign test) nor does their mean stand out of its scatter (a decaying series of losses
+    # has a large scatter, so the sign test carries it)
+    losses = R[moved, 0]
+    n = len(losses)
+    sign_z = (int(np.sum(losses > 0)) - n / 2) / (np.sqrt(n) / 2) if n else 0.0
+    spread = float(np.std(losses, ddof=1)) / np.sqrt(n) if n > 1 else 0.0
+    lossless = n >= MIN_CYCLES and sign_z < SIGN_Z and float(np.mean(losses)) < LOSS_Z * spread
+    keep = (R[:, 0] > 0) & moved
     R = R[keep]
     amp = list(np.asarray(amp)[keep])
     t0 = list(np.asarray(t0)[keep])
@@ -132,6 +143,9 @@ def free_decay(prep: Prepared, rig: RigConfig, sigma: float = 0.005, stop_time: 
         fits[name] = DecayFit(name, bp, fc, loo, se_bp, se_fc)
     admissible = [n for n, f in fits.items() if f.bp >= 0 and f.Fc >= 0]
     best = min(admissible or list(fits), key=lambda n: fits[n].loo_rms)
+    if lossless:  # no loss to name: the energy per cycle is constant within its noise
+        fits["none"] = DecayFit("none", 0.0, 0.0, float("nan"))
+        best = "none"
     tail = x[-max(10, len(x) // 20) :]
     return DecayResult(
         cycles=len(R), amplitude=np.asarray(amp), t=np.asarray(t0), loss=R[:, 0], fits=fits, best=best,

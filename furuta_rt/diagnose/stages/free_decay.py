@@ -23,16 +23,19 @@ def stage(s: State) -> State:
         return s.noted(swing.TOO_FEW)
     f = {k: v.loo_rms for k, v in decay.fits.items()}
     pend = [e for e in _decay_effects(decay.fits[decay.best]) if not _as_known(e, s.ctx.known)]
-    read = swing.read(prep, rig, decay.peaks_t, decay.rest_offset)
+    read = swing.read(prep, rig, decay.peaks_t, decay.rest_offset, lossless=decay.best == "none")
     return s.with_(
         decay=decay, decay_report={**decay.as_json(), **read.as_json()},
         found=[e for e in s.found if e.name not in PENDULUM_FRICTION] + pend,
         ambiguities=[a for a in s.ambiguities if not set(a["effects"]) <= set(PENDULUM_FRICTION)],
         lookalikes=[*s.lookalikes, {
             "effects": list(PENDULUM_FRICTION), "reported": ", ".join(e.name for e in pend) or "none",
-            "reason": f"the recording is a free decay of {decay.cycles} cycles: the energy lost per cycle is predicted "
-                      f"within {100 * f['both']:.0f} % by viscous + Coulomb, {100 * f['viscous']:.0f} % by viscous "
-                      f"alone, {100 * f['coulomb']:.0f} % by Coulomb alone (leave-one-cycle-out)",
+            "reason": f"the recording is a free decay of {decay.cycles} cycles: " + (
+                "it loses no measurable energy per cycle (its losses and gains balance within their scatter)"
+                if decay.best == "none" else
+                f"the energy lost per cycle is predicted within {100 * f['both']:.0f} % by viscous + Coulomb, "
+                f"{100 * f['viscous']:.0f} % by viscous alone, {100 * f['coulomb']:.0f} % by Coulomb alone "
+                "(leave-one-cycle-out)"),
             "experiment": EXPERIMENTS[frozenset(PENDULUM_FRICTION)],
         }],
     ).noted(*read.notes())

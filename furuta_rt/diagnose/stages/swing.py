@@ -240,6 +240,7 @@ class Swing:
     envelope: Envelope | None
     period: Period | None
     arm_held: bool
+    lossless: bool = False  # the energy fit finds no measurable loss (stages/decay.py)
 
     def as_json(self) -> dict:
         return {"envelope": self.envelope.as_json() if self.envelope else None,
@@ -247,7 +248,10 @@ class Swing:
 
     def notes(self) -> list[str]:
         out = []
-        if self.envelope is not None:
+        if self.envelope is not None and self.lossless:
+            out.append(f"the swing keeps its amplitude ({self.envelope.start:.3g} → {self.envelope.end:.3g} rad over "
+                       f"{self.envelope.points} turning points): no measurable loss, no pivot friction to name")
+        elif self.envelope is not None:
             out.append(self.envelope.text(self.period.measured if self.period else None))
         if self.period is not None:
             out.append(self.period.text())
@@ -256,7 +260,7 @@ class Swing:
         return out
 
 
-def read(prep: Prepared, rig: RigConfig, peaks_t: np.ndarray, centre: float) -> Swing:
+def read(prep: Prepared, rig: RigConfig, peaks_t: np.ndarray, centre: float, lossless: bool = False) -> Swing:
     """The envelope through the turning points at ``peaks_t`` (amplitudes about ``centre``, where the swing settles,
     rad from hanging) and, with the arm held, the period against the config's."""
     peaks_t = np.asarray(peaks_t)
@@ -265,4 +269,4 @@ def read(prep: Prepared, rig: RigConfig, peaks_t: np.ndarray, centre: float) -> 
     env = envelope(peaks_t, np.abs(x[at])) if len(peaks_t) else None
     held = float(np.ptp(prep.phi[prep.valid])) < ARM_STILL_RAD
     per = period(prep, rig, centre, float(peaks_t[0]), float(peaks_t[-1])) if held and len(peaks_t) else None
-    return Swing(env, per, held)
+    return Swing(env, per, held, lossless)
