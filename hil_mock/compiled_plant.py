@@ -58,6 +58,8 @@ def unsupported(model: RigModel) -> str | None:
     """Why plant.c cannot run ``model`` (None: it can)."""
     if model.coupling is not None:
         return "a compliant coupling"
+    if model.joint_torques:
+        return "the torque laws of " + ", ".join(e.name for e in model.joint_torques)
     if model.pendulum_friction.dry is not None or model.pendulum_friction.lugre is not None:
         return "dry friction at the pendulum"
     dry = model.arm_friction.dry

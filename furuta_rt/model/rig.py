@@ -13,7 +13,7 @@ from typing import Protocol
 
 from furuta_rt.model.actuator import Actuator, DCMotor
 from furuta_rt.model.coupling import Coupling
-from furuta_rt.model.effects import Effects
+from furuta_rt.model.effects import PEND, Effects, JointTorque
 from furuta_rt.model.friction import Coulomb, CoulombStiction, JointFriction, LuGre, Viscous
 from furuta_rt.model.parameters import LumpedParameters
 from furuta_rt.model.plant import FurutaPlant
@@ -72,6 +72,17 @@ class RigModel:
     theta_noise: float = 0.0
     theta_dot_noise: float = 0.0
     coupling: Coupling | None = None  # a compliant rotor–arm coupling (not eq. 4; simulated only when set)
+    joint_torques: tuple[JointTorque, ...] = ()  # the registry's torque-law effects that are set (effects.JointTorque)
+
+    def joint_torque(self, theta: float, theta_dot: float, phi: float, phi_dot: float) -> tuple[float, float]:
+        """(τ_pendulum, τ_arm) of the torque-law effects at the states (0, 0 without any)."""
+        tau_p = tau_a = 0.0
+        for e in self.joint_torques:
+            if e.equation == PEND:
+                tau_p += e.torque(theta, theta_dot, phi, phi_dot)
+            else:
+                tau_a += e.torque(theta, theta_dot, phi, phi_dot)
+        return tau_p, tau_a
 
     @classmethod
     def from_config(cls, rig: RigSpec, effects: Effects | None = None) -> RigModel:
@@ -120,6 +131,7 @@ class RigModel:
             command_latency=eff.command_latency.delay if eff.command_latency else None,
             theta_noise=s.theta_noise,
             theta_dot_noise=s.theta_dot_noise,
+            joint_torques=eff.joint_torques(),
         )
 
 

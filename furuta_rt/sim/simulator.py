@@ -10,7 +10,8 @@ Time is advanced in control ticks (default 500 Hz), each split into physics subs
    slides against ±Fc. No chattering at φ̇ ≈ 0, and no ε to tune;
 3. LuGre's bristle state is advanced with its exact exponential solution for the substep (stable for
    any stiffness σ0), its force held over the substep;
-4. the smooth dynamics (eq. 4, viscous terms, spring, pendulum friction, and the Bessel filter
+4. the smooth dynamics (eq. 4, viscous terms, spring, pendulum friction, the torque-law effects of the registry
+   (furuta_rt.model.effects.JointTorque), and the Bessel filter
    states driven by θ) are integrated with classical RK4.
 
 Without friction or input the scheme is plain RK4 on a Hamiltonian system: energy drift over 10 s is
@@ -150,6 +151,7 @@ class Simulator:
         fv_arm, k, phi0, bp = self._fv_arm, self._k, self._phi0, self._bp
         smooth_dry, pend_dry = self._smooth_dry, self._pend_dry
         fa0, fa1, offset = self._fa0, self._fa1, self.model.theta_offset
+        joint_torque = self.model.joint_torque if self.model.joint_torques else None  # the registry's torque laws
 
         def rhs(
             th: float, thd: float, ph: float, phd: float, y: float, yd: float, tau0: float, damp: float, F: float
@@ -161,6 +163,10 @@ class Simulator:
             tau_p = -bp * thd
             if pend_dry is not None:
                 tau_p += pend_dry.torque(thd)
+            if joint_torque is not None:
+                extra_p, extra_a = joint_torque(th, thd, ph, phd)
+                tau_p += extra_p
+                tau_arm += extra_a
             thdd, phdd = accelerations(th, thd, phd, tau_arm, tau_p)
             return thdd, phdd, fa0 * (th + offset - y) - fa1 * yd, 0.0
 
@@ -171,6 +177,8 @@ class Simulator:
         tau_p = -self._bp * thd
         if self._pend_dry is not None:
             tau_p += self._pend_dry.torque(thd)
+        if self.model.joint_torques:
+            tau_p += self.model.joint_torque(th, thd, self.phi, 0.0)[0]
         thdd = (self._eps * math.sin(th) + tau_p) / self._alpha
         ydd = self._fa0 * (th + self.model.theta_offset - y) - self._fa1 * yd
         return thdd, ydd
@@ -179,6 +187,8 @@ class Simulator:
         """Friction torque needed to keep the arm at rest (arm row of eq. 4 with φ̇ = φ̈ = 0)."""
         th, thd = self.theta, self.theta_dot
         thdd, _ = self._rhs_stuck(th, thd, self.y, self.y_dot)
+        if self.model.joint_torques:
+            tau_arm_ext += self.model.joint_torque(th, thd, self.phi, 0.0)[1]
         return self.model.plant.inverse_dynamics(th, thd, 0.0, thdd, 0.0)[1] - tau_arm_ext
 
     def _substep(self, command: float) -> None:

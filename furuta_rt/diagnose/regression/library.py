@@ -22,12 +22,10 @@ import numpy as np
 from furuta_rt.config import RigConfig
 from furuta_rt.diagnose.regression.states import Prepared, States
 from furuta_rt.model.actuator import Actuator
+from furuta_rt.model.effects import ARM, EFFECT_TYPES, PEND, JointTorque
 from furuta_rt.model.friction import Coulomb, LuGre, Viscous
 from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.rig import PENDULUM_COULOMB_EPSILON, RigModel
-
-ARM = "arm"
-PEND = "pendulum"
 
 
 def law_on_array(law_torque, v: np.ndarray) -> np.ndarray:
@@ -172,7 +170,24 @@ class Context:
             out += -self.model.spring_k * (a.phi - self.model.spring_phi0)
         if self.model.arm_bias:  # the rig's own constant torque (the kernel integrates to one)
             out += self.model.arm_bias
-        return out
+        return out + self.known_joint_torque(ARM)
+
+    def known_joint_torque(self, equation: str) -> np.ndarray | float:
+        """K * (the torque of the rig's own torque-law effects on ``equation``'s joint; RigModel.joint_torques)."""
+        own = [e for e in self.model.joint_torques if e.equation == equation]
+        if not own:
+            return 0.0
+        f = self.fine
+        x = (f.theta - self.model.theta_offset, f.theta_dot, f.phi, f.phi_dot)
+        return self.states(equation).product(sum(e.torque(*x) for e in own))
+
+    def joint_torque_columns(self, effect: type[JointTorque]) -> np.ndarray:
+        """K * (a torque-law effect's basis, one column per parameter): the law evaluated on the instantaneous
+        motion (the narrow kernel's states) and seen through its equation's kernel like every other column."""
+        f = self.fine
+        basis = effect.basis(f.theta - self.model.theta_offset, f.theta_dot, f.phi, f.phi_dot)
+        s = self.states(effect.equation)
+        return np.column_stack([s.product(np.broadcast_to(b, f.theta.shape).astype(float)) for b in basis])
 
     def lugre_params(self, params: dict[str, dict[str, float]], vs: float) -> dict[str, float]:
         """arm_lugre in the vocabulary from the regression's Coulomb level, viscous term and Stribeck peak; σ0 and σ1
@@ -205,7 +220,7 @@ class Context:
             out += fr.viscous.torque(p.theta_dot)
         if fr.dry is not None:
             out += p.product(law_on_array(fr.dry.torque, f.theta_dot))
-        return out
+        return out + self.known_joint_torque(PEND)
 
     # ------------------------------------------------------------------ the command torque
     def command_torque(self, path: InputPath, equation: str = ARM) -> np.ndarray:
@@ -365,15 +380,30 @@ QUIET_THETA_DOT = 0.05  # rad/s: a pendulum slower than this hardly pushes the a
 
 @dataclass(frozen=True)
 class Candidate:
-    """One named effect of furuta_rt.model.effects as seen by the regression."""
+    """One named effect of the registry (furuta_rt.model.effects.EFFECT_TYPES) as seen by the regression: its row of
+    eq. 4, size parameter and look-alikes are the registry's; how its parameters enter the residual is below — a
+    JointTorque's columns are its torque law's basis, the other effects' are spelled out per effect."""
 
     name: str
-    equation: str
-    main: str  # the parameter that measures its size
-    lookalikes: tuple[str, ...] = ()
     nonlinear: str | None = None  # "delay" | "deadzone" | "limit" (command path), "inertia" (ΔJ), "vs" (Stribeck)
     requires: str | None = None  # an effect that must be in the model first
     excludes: tuple[str, ...] = ()  # effects it cannot be added to (the same parameter, or the same column)
+
+    @property
+    def effect(self) -> type:
+        return EFFECT_TYPES[self.name]
+
+    @property
+    def equation(self) -> str:
+        return self.effect.equation
+
+    @property
+    def main(self) -> str:
+        return self.effect.main
+
+    @property
+    def lookalikes(self) -> tuple[str, ...]:
+        return self.effect.lookalikes
 
     def columns(self, ctx: Context, path: InputPath, vs: float = 0.0) -> np.ndarray:
         """(n, k) regressors for this effect's linear parameters (k = 0 for pure input-path effects)."""
@@ -407,6 +437,8 @@ class Candidate:
                 h = 1e-4
                 up, down = ctx.inverse_dynamics(PEND, theta_shift=-h), ctx.inverse_dynamics(PEND, theta_shift=h)
                 return ((up - down) / (2 * h))[:, None]
+        if issubclass(self.effect, JointTorque):
+            return ctx.joint_torque_columns(self.effect)
         return np.zeros((n, 0))
 
     def params(self, coef: np.ndarray, path: InputPath, gain: float, ctx: Context, d_inertia: float = 0.0) -> dict[str, float]:
@@ -444,6 +476,8 @@ class Candidate:
                 return {"width": float(path.deadzone * gain)}
             case "input_saturation":
                 return {"limit": float((path.limit or 0.0) * gain)}
+        if issubclass(self.effect, JointTorque):  # linear in its parameters: the rig's own value plus the departure
+            return {p: k(self.name, p) + float(c) for p, c in zip(self.effect.model_fields, coef, strict=True)}
         raise KeyError(self.name)
 
     def plausible(self, par: dict[str, float], rig: RigConfig, travel: tuple[float, float] | None = None) -> bool:
@@ -473,7 +507,7 @@ class Candidate:
                 return abs(par["offset"]) < 0.3
             case "arm_lugre":
                 return par.get("Fs_minus_Fc", par.get("Fs", 0.0) - par.get("Fc", 0.0)) > 0
-        return True
+        return self.effect.admissible(par)
 
 
 def nominal_latency(rig: RigConfig) -> float:
@@ -505,22 +539,26 @@ def kink_supported(u: np.ndarray, kink: float) -> bool:
 MAX_SPRING_TRAVEL = 2 * np.pi  # rad: an arm that turns a whole revolution cannot be tied by a cable
 INERTIA_STEP = 1e-3  # kg m², for the derivative of ID with respect to J (ID is linear in J: exact)
 
+_SPELLED_OUT = (  # the effects whose parameters enter the residual in their own way (columns, params above)
+    Candidate("arm_coulomb"),
+    Candidate("arm_viscous"),
+    Candidate("arm_spring", excludes=("arm_bias",)),
+    Candidate("arm_bias", excludes=("arm_spring",)),
+    Candidate("arm_inertia", nonlinear="inertia"),
+    Candidate("input_gain"),
+    Candidate("input_delay", nonlinear="delay", excludes=("command_latency",)),
+    Candidate("command_latency", nonlinear="latency", excludes=("input_delay",)),
+    Candidate("input_deadzone", nonlinear="deadzone"),
+    Candidate("input_saturation", nonlinear="limit"),
+    Candidate("arm_lugre", nonlinear="vs", requires="arm_coulomb"),
+    Candidate("pendulum_viscous"),
+    Candidate("pendulum_coulomb"),
+    Candidate("theta_offset"),
+)
 CANDIDATES: dict[str, Candidate] = {
     c.name: c
     for c in (
-        Candidate("arm_coulomb", ARM, "Fc", lookalikes=("input_deadzone",)),
-        Candidate("arm_viscous", ARM, "Fv"),
-        Candidate("arm_spring", ARM, "k", lookalikes=("theta_offset", "arm_inertia"), excludes=("arm_bias",)),
-        Candidate("arm_bias", ARM, "tau", lookalikes=("theta_offset", "input_gain"), excludes=("arm_spring",)),
-        Candidate("arm_inertia", ARM, "J", lookalikes=("input_gain", "arm_spring"), nonlinear="inertia"),
-        Candidate("input_gain", ARM, "gain", lookalikes=("arm_inertia", "arm_bias")),
-        Candidate("input_delay", ARM, "delay", nonlinear="delay", excludes=("command_latency",)),
-        Candidate("command_latency", ARM, "delay", nonlinear="latency", excludes=("input_delay",)),
-        Candidate("input_deadzone", ARM, "width", lookalikes=("arm_coulomb",), nonlinear="deadzone"),
-        Candidate("input_saturation", ARM, "limit", nonlinear="limit"),
-        Candidate("arm_lugre", ARM, "Fs", nonlinear="vs", requires="arm_coulomb"),
-        Candidate("pendulum_viscous", PEND, "bp", lookalikes=("pendulum_coulomb",)),
-        Candidate("pendulum_coulomb", PEND, "Fc", lookalikes=("pendulum_viscous",)),
-        Candidate("theta_offset", PEND, "offset", lookalikes=("arm_spring", "arm_bias")),
+        *_SPELLED_OUT,
+        *(Candidate(name) for name, cls in EFFECT_TYPES.items() if issubclass(cls, JointTorque)),
     )
 }

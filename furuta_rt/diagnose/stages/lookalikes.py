@@ -15,6 +15,7 @@ from furuta_rt.diagnose.stages.equations import completed_pairs, fair_baseline, 
 from furuta_rt.diagnose.stages.findings import EquationResult, Options, found_in, refit
 from furuta_rt.diagnose.stages.rest import bias_at_rest as rest_test
 from furuta_rt.diagnose.stages.state import State
+from furuta_rt.model.effects import EFFECT_TYPES
 
 
 def stage(s: State) -> State:
@@ -33,35 +34,8 @@ def stage(s: State) -> State:
 
 
 EXPERIMENTS: dict[frozenset[str], str] = {
-    frozenset({"arm_coulomb", "input_deadzone"}): (
-        "a slow constant-velocity arm sweep (Coulomb friction needs the torque Fc at any speed, a deadzone lets "
-        "the arm coast with |u| below the width) or a dither on u (it smooths a deadzone, not friction)"
-    ),
-    frozenset({"input_gain", "arm_inertia"}): (
-        "a static torque test (a known command with the arm held against a force gauge measures the gain alone) "
-        "or a repeat with a known inertia added to the arm"
-    ),
-    frozenset({"input_gain", "arm_bias"}): (
-        "a command that changes while the arm moves (several step levels, a sine) or a rest at zero command: on one "
-        "constant step the gain's extra torque and a constant one are the same column; at rest a bias moves the arm"
-    ),
-    frozenset({"arm_viscous", "arm_coulomb"}): (
-        "runs at several arm speeds in both directions (viscous friction grows with the speed, Coulomb friction does "
-        "not; on one speed in one direction the two are the same constant torque)"
-    ),
-    frozenset({"pendulum_viscous", "pendulum_coulomb"}): (
-        "a pendulum free decay from a large angle (viscous damping: exponential envelope; Coulomb: linear)"
-    ),
-    frozenset({"arm_spring", "arm_inertia"}): (
-        "an arm excitation with more than one frequency (a chirp, steps, or a second sine): a spring's torque follows "
-        "φ − φ0 and an inertia's φ̈, which on a single frequency are the same column (k = −ΔJ·ω²)"
-    ),
-    frozenset({"theta_offset", "arm_spring"}): (
-        "a pendulum free decay (it comes to rest hanging at θ = π + offset: a sensor offset shows there, a cable "
-        "spring does not) and a slow arm sweep (a spring needs the torque k(φ − φ0))"
-    ),
-}
-
+    frozenset({name, other}): text for name, cls in EFFECT_TYPES.items() for other, text in cls.experiments.items()
+}  # the experiment that tells two effects apart, from the registry (furuta_rt.model.effects)
 
 
 def check_lookalikes(

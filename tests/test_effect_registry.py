@@ -1,0 +1,83 @@
+"""The effect registry (furuta_rt.model.effects.EFFECT_TYPES): one class per effect, read by the rig configuration,
+the simulator and diagnose's regression library; and the effect added through it alone (arm_air_drag)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from furuta_rt.config import load_rig
+from furuta_rt.diagnose.regression.library import CANDIDATES
+from furuta_rt.diagnose.stages.lookalikes import EXPERIMENTS
+from furuta_rt.model.effects import ARM, EFFECT_TYPES, PEND, Effects, JointTorque, parse_effect_assignment
+from furuta_rt.model.rig import RigModel
+from furuta_rt.sim.simulator import Simulator
+
+
+def test_every_registered_effect_is_a_config_field_an_assignment_and_a_consistent_entry() -> None:
+    assert list(Effects.model_fields) == list(EFFECT_TYPES)
+    for name, cls in EFFECT_TYPES.items():
+        assert cls.name == name and cls.equation in (ARM, PEND) and cls.main in cls.model_fields
+        assert parse_effect_assignment(f"{name}.{cls.main}=0.5")[:2] == (name, cls.main)
+        assert set(cls.lookalikes) <= set(EFFECT_TYPES) and name not in cls.lookalikes
+        for other in cls.experiments:
+            assert other in EFFECT_TYPES and EXPERIMENTS[frozenset({name, other})] == cls.experiments[other]
+    for name, cand in CANDIDATES.items():  # the regression sees the registry's row, size parameter and look-alikes
+        cls = EFFECT_TYPES[name]
+        assert (cand.equation, cand.main, cand.lookalikes) == (cls.equation, cls.main, cls.lookalikes)
+    # every torque-law effect is a regression candidate without any entry of its own in the library
+    assert {n for n, c in EFFECT_TYPES.items() if issubclass(c, JointTorque)} <= set(CANDIDATES)
+
+
+def test_a_torque_law_effect_enters_the_rig_model_and_its_row_of_eq_4() -> None:
+    """arm_air_drag: RigModel carries it, its torque is −c·φ̇|φ̇| on the arm and nothing on the pendulum, and a
+    coasting arm with only that drag slows as the closed form of J_eff·φ̈ = −c·φ̇² says (pendulum hanging still)."""
+    rig = load_rig("thesis")
+    assert RigModel.from_config(rig).joint_torques == ()
+    c = 0.02
+    model = RigModel.from_config(rig, Effects.model_validate({"arm_air_drag": {"c": c}}))
+    (drag,) = model.joint_torques
+    assert model.joint_torque(0.1, 0.2, 0.3, -2.0) == (0.0, pytest.approx(c * 4.0))
+    assert drag.torque(0.0, 0.0, 0.0, np.array([1.0, -3.0])) == pytest.approx([-c, 9 * c])
+    # hanging, the arm coasting from 5 rad/s with only the drag on it: eq. 4's energy falls by the drag's work,
+    # dE/dt = τ·φ̇ = −c·|φ̇|³ (the pendulum, swung by the arm's deceleration, exchanges energy but loses none)
+    sim = Simulator(model, seed=0, x0=(math.pi, 0.0, 0.0, 5.0))
+    e0, speeds = sim.energy(), [sim.phi_dot]
+    for _ in range(500):  # 1 s
+        sim.advance()
+        speeds.append(sim.phi_dot)
+    work = np.trapezoid(-c * np.abs(speeds) ** 3, dx=1 / 500)
+    assert sim.phi_dot < 2.0 and sim.energy() - e0 == pytest.approx(work, rel=1e-3)
+
+
+C_DRAG = 0.01  # N m s²/rad²: a flag on the arm; 0.02 N m at the 1.5 rad/s the square reference reaches
+
+
+def _balancing(c: float):
+    """30 s of the thesis rig balancing with the suite's square arm reference (seed 5), with air drag c on the arm."""
+    from benchmarks.suite import reference_signal
+    from furuta_rt.sim.closed_loop import run_closed_loop
+
+    rig = load_rig("thesis")
+    n = int(30.0 * rig.control.rate_hz)
+    eff = Effects.model_validate({"arm_air_drag": {"c": c}} if c else {})
+    return rig, run_closed_loop(rig, 30.0, effects=eff, seed=5, reference=reference_signal("square", n, 500.0, 5))
+
+
+def test_diagnose_finds_air_drag_concealed_in_a_recording_and_not_where_there_is_none() -> None:
+    """The effect added through the registry alone is found by diagnose's regression: concealed at c = 0.01 it is
+    named (told apart from its look-alike, viscous friction) with c within 4 standard errors of the truth and a
+    standard error under 5 % of it (measured: 0.01001 ± 0.0001); the same run without it names no effect."""
+    from furuta_rt.diagnose import Options, diagnose
+
+    opts = Options(closed_loop=False)
+    rig, rec = _balancing(C_DRAG)
+    d = diagnose(rec, rig, opts)
+    (drag,) = [e for e in d.effects if e.name == "arm_air_drag"]
+    assert abs(drag.params["c"] - C_DRAG) <= 4 * drag.se["c"] and drag.se["c"] < 0.05 * C_DRAG
+    assert any(a["effects"] == ["arm_air_drag", "arm_viscous"] and a["reported"] == "arm_air_drag" for a in d.lookalikes)
+    assert d.verdicts["arm"].verdict == "explained"
+    rig, rec = _balancing(0.0)
+    assert diagnose(rec, rig, opts).names == []
