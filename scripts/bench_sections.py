@@ -1042,8 +1042,10 @@ def bench_memory(quick: bool) -> dict[str, Any]:
             continue
         slope = float(np.polyfit(pts[:, 0] / 60.0, pts[:, 1], 1)[0])
         out[name] = {"samples": len(pts), "first_kb": int(pts[0, 1]), "last_kb": int(pts[-1, 1]), "max_kb": int(pts[:, 1].max()),
-                     "slope_kb_per_min": slope, "growth_per_hour_fraction": slope * 60.0 / float(pts[:, 1].max())}
+                     "slope_kb_per_min": slope, "growth_per_hour_fraction": slope * 60.0 / float(pts[:, 1].max()),
+                     "series_s_kb": pts[:: max(1, len(pts) // 60)].astype(int).tolist()}  # the shape, for the JSON
     out["control_peak_rss_kb"] = run.peak_rss_kb
+    out["log_drops"] = run.summary.get("dropped_log_messages")
     growth = out["control"].get("growth_per_hour_fraction")
     out["target"] = "no growth: fitted slope < 1% of the peak per hour"
     out["met"] = growth is not None and growth < 0.01
