@@ -220,7 +220,7 @@ def test_cli_diagnoses_a_default_rig_csv_without_config(recordings, tmp_path) ->
     [
         (None, "does not exist"),
         ("t,theta,u\n0,0,0\n0.002,0,0\n", "missing column"),
-        ("t,theta,phi,u\n" + "".join(f"{k * 0.002},0,0,0\n" for k in range(50)), "at least 200"),
+        ("t,theta,phi,u\n" + "".join(f"{k * 0.002},0,0,0\n" for k in range(50)), "at least 100"),
         ("t,theta,phi,u\n" + "".join(f"{k * 0.002},{'nan' if k % 3 else 0},0,0\n" for k in range(1400)), "non-finite values"),
     ],
 )

@@ -212,3 +212,16 @@ def test_a_rest_through_a_pulse_is_read_in_its_parts(qube: RigConfig) -> None:
     lock = armlock.assess(prepare(rec, qube), qube)
     assert lock is not None and lock.verdict == "dry friction", lock
     assert 0.5 * 0.015 < lock.at_zero < 1.1 * 0.015
+
+
+def test_a_two_and_a_half_second_50_hz_file_is_diagnosed_for_what_it_holds(qube: RigConfig) -> None:
+    """2.4 s at 50 Hz (120 samples): diagnose runs, says each equation has too few rows to assess, and names nothing it
+    cannot support; 1.5 s is refused in one line naming the minimum."""
+    from furuta_rt.errors import UserError
+
+    rec = driven_recording(qube, STICTION, 50.0, 2.4, square_pulses(3.0))
+    d = diagnose(rec, qube, FAST)
+    assert d.effects == []
+    assert {v.verdict for v in d.verdicts.values()} == {"not_assessed"}, d.summary
+    with pytest.raises(UserError, match="at least 100"):
+        diagnose(driven_recording(qube, STICTION, 50.0, 1.5, square_pulses(3.0)), qube, FAST)

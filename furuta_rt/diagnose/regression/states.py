@@ -264,6 +264,8 @@ MAX_SIGMA = 0.05  # s, widest filter the diagnosis uses (sets the margin at the 
 
 
 MIN_SECONDS = 2.0  # a shorter recording is refused
+MIN_SAMPLES = 100  # ... and one of fewer samples: 2 s at the 50 Hz hobby and teaching rigs log
+MIN_VALID = 50  # samples clear of the widest kernel at both ends
 MAX_MISSING_SHARE = 0.05  # more non-finite samples than this share of a column: refused
 MAX_GAP_SECONDS = 0.05  # a longer run of non-finite samples (or of missing time) is refused
 
@@ -317,8 +319,8 @@ def prepare(rec: Recording, rig: RigConfig, bessel_cutoff: float | str | None = 
     its median sample period. Anything that cannot be diagnosed is a one-line UserError."""
     notes: list[str] = []
     n = len(rec)
-    if n < 200:
-        raise UserError(f"recording has {n} samples; the diagnosis needs at least 200 (a few seconds)")
+    if n < MIN_SAMPLES:
+        raise UserError(f"recording has {n} samples; the diagnosis needs at least {MIN_SAMPLES} (a few seconds)")
     cols = {"theta": rec.theta, "phi": rec.phi, "u": rec.u}
     if rec.theta_dot is not None:
         cols["theta_dot"] = rec.theta_dot
@@ -328,8 +330,8 @@ def prepare(rec: Recording, rig: RigConfig, bessel_cutoff: float | str | None = 
     raw = cols["theta"], cols["phi"]
     cols["theta"], cols["phi"] = canonical_angles(*raw, keep_phi=rig.effects.arm_spring is not None)
     turns = (float(np.median(raw[0] - cols["theta"])), float(np.median(raw[1] - cols["phi"])))
-    if len(t) < 200:
-        raise UserError(f"recording has {len(t)} usable samples; the diagnosis needs at least 200 (a few seconds)")
+    if len(t) < MIN_SAMPLES:
+        raise UserError(f"recording has {len(t)} usable samples; the diagnosis needs at least {MIN_SAMPLES} (a few seconds)")
     steps = np.diff(t)
     dt = float(np.median(steps))
     if not dt > 0:
@@ -354,8 +356,9 @@ def prepare(rec: Recording, rig: RigConfig, bessel_cutoff: float | str | None = 
     margin = math.ceil(5 * MAX_SIGMA / dt) + 2
     valid = np.zeros(len(t), dtype=bool)
     valid[margin : len(t) - margin] = True
-    if valid.sum() < 100:
-        raise UserError(f"recording is {t[-1] - t[0]:.2f} s long; the diagnosis needs at least {2 * margin * dt + 1:.1f} s")
+    if valid.sum() < MIN_VALID:
+        raise UserError(f"recording is {t[-1] - t[0]:.2f} s long; the diagnosis needs at least "
+                        f"{(2 * margin + MIN_VALID) * dt:.2g} s at its {1 / dt:.0f} Hz")
     same = len(t) == n and not resampled
     return Prepared(
         t=t, theta_f=cols["theta"], theta_dot_f=cols.get("theta_dot"), phi=cols["phi"], u=cols["u"], dt=dt,
