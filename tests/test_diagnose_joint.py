@@ -17,7 +17,7 @@ import pytest
 
 from furuta_rt.cli import main
 from furuta_rt.config import load_rig
-from furuta_rt.diagnose import Options
+from furuta_rt.diagnose import Options, diagnose
 from furuta_rt.diagnose.joint import JointDiagnosis, diagnose_joint
 from furuta_rt.diagnose.stages.lookalikes import SEPARATION_Z
 from furuta_rt.experiment.plan import Excitation, Plan, Segment
@@ -41,23 +41,38 @@ def recordings(effects: dict, sweeps: tuple[int, ...] = (2, 3)) -> list[tuple[st
     return out
 
 
+def joint(recs: list[tuple[str, object]]) -> JointDiagnosis:
+    """The joint diagnosis, each recording's own without the stick-window stage (no arm sticks here; it is a third
+    of a single diagnosis's time) and none with the closed-loop re-simulation."""
+    rig = load_rig("thesis")
+    singles = [diagnose(rec, rig, Options(closed_loop=False, stick_windows=False)) for _, rec in recs]
+    return diagnose_joint(recs, rig, Options(closed_loop=False), singles=singles)
+
+
 @pytest.fixture(scope="module")
-def gain_case() -> JointDiagnosis:
-    return diagnose_joint(recordings({"input_gain": {"gain": GAIN}}), load_rig("thesis"), Options(closed_loop=False))
+def gain_recordings() -> list[tuple[str, object]]:
+    return recordings({"input_gain": {"gain": GAIN}})
+
+
+@pytest.fixture(scope="module")
+def gain_case(gain_recordings: list[tuple[str, object]]) -> JointDiagnosis:
+    return joint(gain_recordings)
 
 
 @pytest.fixture(scope="module")
 def null_case() -> JointDiagnosis:
-    return diagnose_joint(recordings({}, (2,)), load_rig("thesis"), Options(closed_loop=False))
+    return joint(recordings({}, (2,)))
 
 
-def test_sweeps_stay_within_the_rig_limits() -> None:
+def test_sweeps_stay_within_the_rig_limits(gain_recordings: list[tuple[str, object]]) -> None:
     rig = load_rig("thesis")
-    _, rec = recordings({"input_gain": {"gain": GAIN}})[1]
-    assert np.max(np.abs(rec.u)) < rig.actuator.limit and np.max(np.abs(rec.theta)) < rig.safety.theta_limit
-    assert np.max(np.abs(rec.phi)) < rig.safety.phi_limit
+    for _, rec in gain_recordings[1:]:
+        assert np.max(np.abs(rec.u)) < rig.actuator.limit and np.max(np.abs(rec.theta)) < rig.safety.theta_limit
+        assert np.max(np.abs(rec.phi)) < rig.safety.phi_limit
 
 
+# four diagnoses of 20–31 s recordings (three alone, one joint) in the fixture: 270 s at load 11 on two cores
+@pytest.mark.timeout(900)
 def test_alone_unresolved_jointly_the_gain(gain_case: JointDiagnosis) -> None:
     for alone in gain_case.singles[:2]:  # the passive recording, the first sweep
         assert any(set(a["effects"]) == PAIR for a in alone.ambiguities), alone.ambiguities
@@ -74,6 +89,7 @@ def test_alone_unresolved_jointly_the_gain(gain_case: JointDiagnosis) -> None:
     assert sep["predicted_alternative"] == pytest.approx(1 - GAIN, abs=4 * gain.se["gain"])
 
 
+@pytest.mark.timeout(900)
 def test_null_rig_names_nothing(null_case: JointDiagnosis) -> None:
     assert null_case.effects == [], [(e.name, e.params) for e in null_case.effects]
     assert not null_case.ambiguities and all(p["reported"] == "none" for p in null_case.pairs)

@@ -298,7 +298,11 @@ def text(j: JointDiagnosis) -> list[str]:
         out.append(f"  {' ↔ '.join(p['effects'])} ({before})")
         if p["status"] == "unresolved":
             more = p.get("more_seconds")
-            need = f"; about {more:.0f} s more of such data would decide it" if more is not None else ""
+            need = (f"; about {more:.0f} s more of such data would decide it" if more is not None else
+                    "; more of such data would not decide it (the held-out errors differ too little)")
+            if set(p["effects"]) == {"input_gain", "arm_inertia"}:
+                need += ("; a hanging experiment swings the pendulum far more than balancing can, and with it the "
+                         "term that tells them apart (furuta-rt experiment design --hanging)")
             out.append(f"    still unresolved jointly: {p['reason']}{need}")
         else:
             out.append(f"    resolved jointly: {p['reported']} — {p['reason']}")
