@@ -225,3 +225,22 @@ def test_a_two_and_a_half_second_50_hz_file_is_diagnosed_for_what_it_holds(qube:
     assert {v.verdict for v in d.verdicts.values()} == {"not_assessed"}, d.summary
     with pytest.raises(UserError, match="at least 100"):
         diagnose(driven_recording(qube, STICTION, 50.0, 1.5, square_pulses(3.0)), qube, FAST)
+
+
+def test_one_command_magnitude_leaves_gain_and_dead_band_alike(qube: RigConfig) -> None:
+    """±3 V pulses through a 1 V dead band: the arm equation names an input gain (the same column on one magnitude),
+    declared with the dead band of (1 − g)·3 V as its look-alike — its width within 10 % of the true 1 V. Pulses of two
+    heights through a true gain of 0.7 name the gain with no such look-alike (two magnitudes tell them apart)."""
+    rec = driven_recording(qube, ["input_deadzone.width=1.0", "arm_viscous.Fv=2e-4"], 50.0, 6.0, square_pulses(3.0))
+    d = diagnose(rec, qube, FAST)
+    alike = [a for a in d.ambiguities if a["effects"] == ["input_gain", "input_deadzone"]]
+    assert len(alike) == 1, d.ambiguities
+    assert alike[0]["alternative"]["params"]["width"] == pytest.approx(1.0, rel=0.1)
+
+    def two_heights(t: float) -> float:
+        return square_pulses(3.0)(t) if t % 6.0 < 3.0 else square_pulses(1.5)(t)
+
+    rec = driven_recording(qube, ["input_gain.gain=0.7", "arm_viscous.Fv=2e-4"], 50.0, 12.0, two_heights, seed=3)
+    d = diagnose(rec, qube, FAST)
+    assert "input_gain" in d.names
+    assert not any(set(a["effects"]) == {"input_gain", "input_deadzone"} for a in d.ambiguities), d.ambiguities

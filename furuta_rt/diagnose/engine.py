@@ -27,6 +27,7 @@ from furuta_rt.diagnose.stages import (
     arm_rests,
     arm_starts,
     closed_loop,
+    command_levels,
     consistency,
     equations,
     fit_metric,
@@ -61,6 +62,7 @@ PIPELINE: tuple[Stage, ...] = (
     prediction_gate.stage,  # what predicts held-out windows worse is moved out
     practical_size.stage,  # what is too small to matter is reported apart
     arm_rests.stage,  # the arm's rests against a torque: dry friction or a dead band
+    command_levels.stage,  # a command of one magnitude: an input gain is a dead band's look-alike
     consistency.stage,  # the found effects as one simulable set
     fit_metric.stage,  # the nominal against the augmented model on the held-out windows
     closed_loop.stage,  # the controller's own run re-simulated with both models
