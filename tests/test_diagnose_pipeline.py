@@ -36,7 +36,7 @@ def recording(rig):
 def snapshot(s: State) -> tuple:
     """What a stage must leave as it found it: the fields' identities and the findings' values."""
     return (tuple(id(getattr(s, f.name)) for f in dataclasses.fields(s)), [dataclasses.asdict(f) for f in s.found],
-            dict(s.res), list(s.notes))
+            dict(s.res), list(s.notes), {eq: len(r.trace) for eq, r in s.res.items()})
 
 
 def test_state_operations_return_new_states_and_freeze_what_they_hold(rig, recording) -> None:

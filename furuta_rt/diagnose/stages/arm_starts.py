@@ -22,7 +22,7 @@ def stage(s: State) -> State:
     ev = latency._refit_at(s.ems[ARM], r.selected.spec.with_effect(name), value, r.selected)
     ev.t_stat[name] = abs(value) / timing.se
     ev.se[name] = {"delay": timing.se}
-    r.trace.append({"step": len(ev.spec.effects), "candidate": "latency (arm starts)", "accepted": True, "ok": True,
-                    "t": ev.t_stat[name], "value": value, "params": timing.as_json(), "cv_gain": 0.0})
-    s = s.with_result(ARM, EquationResult(ARM, r.rows, r.nominal, ev, r.trace, r.location))
+    trace = [*r.trace, {"step": len(ev.spec.effects), "candidate": "latency (arm starts)", "accepted": True, "ok": True,
+                        "t": ev.t_stat[name], "value": value, "params": timing.as_json(), "cv_gain": 0.0}]
+    s = s.with_result(ARM, EquationResult(ARM, r.rows, r.nominal, ev, trace, r.location))
     return s.reread(ARM, new=latency.LATENCY_EFFECTS)

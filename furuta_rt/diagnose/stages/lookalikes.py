@@ -23,8 +23,9 @@ def stage(s: State) -> State:
     ambiguities, lookalikes, swaps = check_lookalikes(s.ems, s.res, s.opts)
     for eq, alt in swaps.items():
         r, em = s.res[eq], s.ems[eq]
-        final = completed_pairs(em, significant(em, refit(em, alt.spec), r.trace), r.trace)
-        s = s.with_result(eq, EquationResult(eq, r.rows, r.nominal, final, r.trace, r.location))
+        trace = list(r.trace)  # the selection's record, continued by the final checks of the swapped model
+        final = completed_pairs(em, significant(em, refit(em, alt.spec), trace), trace)
+        s = s.with_result(eq, EquationResult(eq, r.rows, r.nominal, final, trace, r.location))
         s = s.replace_found([f for f in s.found if not (f.equation == eq and f.source == "inverse dynamics")]
                             + found_in(em, s.res[eq], []))
     if s.stick is not None:  # the stick windows' own look-alikes
