@@ -14,6 +14,7 @@ from furuta_rt.diagnose.stages.lookalikes import EXPERIMENTS
 from furuta_rt.model.effects import ARM, EFFECT_TYPES, PEND, Effects, JointTorque, parse_effect_assignment
 from furuta_rt.model.rig import RigModel
 from furuta_rt.sim.simulator import Simulator
+from hil_mock.compiled_plant import make_simulator, unsupported
 
 
 def test_every_registered_effect_is_a_config_field_an_assignment_and_a_consistent_entry() -> None:
@@ -39,6 +40,8 @@ def test_a_torque_law_effect_enters_the_rig_model_and_its_row_of_eq_4() -> None:
     c = 0.02
     model = RigModel.from_config(rig, Effects.model_validate({"arm_air_drag": {"c": c}}))
     (drag,) = model.joint_torques
+    assert "arm_air_drag" in (unsupported(model) or "")  # plant.c has no torque laws: hil-mock runs the Python plant
+    assert type(make_simulator(model)) is Simulator and unsupported(RigModel.from_config(rig)) is None
     assert model.joint_torque(0.1, 0.2, 0.3, -2.0) == (0.0, pytest.approx(c * 4.0))
     assert drag.torque(0.0, 0.0, 0.0, np.array([1.0, -3.0])) == pytest.approx([-c, 9 * c])
     # hanging, the arm coasting from 5 rad/s with only the drag on it: eq. 4's energy falls by the drag's work,
