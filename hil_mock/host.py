@@ -76,6 +76,20 @@ class MiniHost:
                 return msg
         return None
 
+    def newest_sample(self, timeout: float = 1.0) -> Sample | None:
+        """The newest SAMPLE: everything already received is read and the older SAMPLEs dropped (a host that fell
+        behind answers the device's present tick, as the daemon does, not a backlog the device would discard)."""
+        s = self.next_sample(timeout)
+        if s is None:
+            return None
+        if self.ser.in_waiting:
+            self.pending.extend(self.poll())
+        newer = [m for m in self.pending if type(m) is Sample]
+        others = [m for m in self.pending if type(m) is not Sample]
+        self.pending.clear()
+        self.pending.extend(others)
+        return newer[-1] if newer else s  # type: ignore[return-value]
+
     def handshake(self, timeout: float = 5.0, hello: Hello | None = None, verify: bool = True) -> HelloAck:
         """HELLO (retried every 100 ms) until the matching HELLO_ACK; verified unless ``verify`` is False."""
         hello = hello or make_hello()
