@@ -14,11 +14,12 @@ from furuta_rt.config import RigConfig, load_rig
 # so it keeps a core while the other worker computes; so does any module with a test marked ``hil``, and any new
 # module until it is named here.
 COMPUTE_FILES = {
-    "test_c_codec.py", "test_compiled_plant.py", "test_config.py", "test_convert.py", "test_coupling.py",
-    "test_design.py", "test_experiment_design.py", "test_friction.py", "test_io_mapping.py", "test_io_mcap.py",
-    "test_limit_cycle.py", "test_model.py", "test_protocol.py", "test_replay.py", "test_replay_stats.py",
-    "test_reproduction.py", "test_sensors_observer.py", "test_simulator.py", "test_swingup.py",
-    "test_system_packages.py",
+    "test_c_codec.py", "test_command_path.py", "test_compiled_plant.py", "test_config.py", "test_convert.py",
+    "test_coupling.py", "test_design.py", "test_effect_registry.py", "test_experiment_design.py", "test_friction.py",
+    "test_help_readme.py", "test_io_mapping.py", "test_io_mcap.py", "test_limit_cycle.py", "test_model.py",
+    "test_protocol.py", "test_replay.py", "test_replay_stats.py", "test_reproduction.py", "test_run_summary.py",
+    "test_sensors_observer.py", "test_simulator.py", "test_supervisor.py", "test_swingup.py",
+    "test_swingup_supervisor.py", "test_system_packages.py",
 }
 
 
