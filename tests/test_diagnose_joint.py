@@ -80,6 +80,8 @@ def test_alone_unresolved_jointly_the_gain(gain_case: JointDiagnosis) -> None:
     gain = next(e for e in gain_case.effects if e.name == "input_gain")
     assert "arm_inertia" not in gain_case.names
     assert abs(gain.params["gain"] - GAIN) <= 4 * gain.se["gain"], (gain.params, gain.se)
+    # the passive recording alone named the inertia, which the joint fit does not
+    assert {"recording": "passive", "alone_only": ["arm_inertia"], "joint_only": ["input_gain"]} in gain_case.changes()
     pair = next(p for p in gain_case.pairs if set(p["effects"]) == PAIR)
     assert pair["status"] == "resolved" and pair["reported"] == "input_gain", pair
     # decided by κ: the rival's prediction rejected by ≥ SEPARATION_Z standard errors, the gain's consistent

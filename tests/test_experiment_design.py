@@ -99,7 +99,7 @@ def test_cli_never_overwrites_a_plan_and_writes_a_loadable_one(tmp_path: Path, c
     written = load_plan(plan)
     assert written.segments == family[0].segments and "arm_inertia from input_gain" in written.note
     for needle in ("look-alike: arm_inertia ↔ input_gain (paired t 0.9", "expected separation: κ z",
-                   "worst under either: |φ|", "--experiment"):
+                   "worst under either or neither: |φ|", "--experiment"):
         assert needle in out, out
 
 

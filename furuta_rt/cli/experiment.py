@@ -4,10 +4,9 @@
     furuta-rt experiment design report.json -o plan.toml           searches the excitation that separates them
     furuta-rt run --port /dev/ttyACM0 --experiment plan.toml --log exp.mcap
 
-It prints what the plan does, how long it runs, the expected separation (diagnose's own test statistic on
-simulated recordings of the plan) and the worst
-|φ|, |θ|, |u| predicted under either; a plan beyond the rig's limits is refused; an existing plan file is replaced
-only with --force.
+It prints what the plan does, how long it runs, the expected separation (diagnose's own test statistic on simulated
+recordings of the plan) and the worst |φ|, |θ|, |u| predicted under either alternative or neither; a plan beyond the
+rig's limits is refused; an existing plan file is replaced only with --force.
 """
 
 from __future__ import annotations
@@ -105,7 +104,7 @@ def run_design(args: argparse.Namespace) -> int:
     print(f"expected separation: {best.test} {best.separation:.1f} ({alt.named} true: {best.separation_ab[0]:.1f}, "
           f"{alt.rival} true: {best.separation_ab[1]:.1f}; diagnose's own test on simulated recordings of the plan, "
           f"≥ {best.threshold:g} tells them apart)")
-    print(f"worst under either: |φ| {best.peak_phi:.3f} rad (limit {limits[0]:g}), "
+    print(f"worst under either or neither: |φ| {best.peak_phi:.3f} rad (limit {limits[0]:g}), "
           f"{'|θ − π|' if args.hanging else '|θ|'} {best.peak_theta:.4f} rad "
           f"(limit {limits[1]:g}), |u| {best.peak_u:.3f} (limit {limits[2]:g})")
     if best.separation < best.threshold:

@@ -168,6 +168,16 @@ class JointDiagnosis:
     def names(self) -> list[str]:
         return [e.name for e in self.effects]
 
+    def changes(self) -> list[dict]:
+        """Per recording, the effects it named alone that the joint fit does not, and the joint fit's it did not."""
+        joint = set(self.names)
+        out = []
+        for source, d in zip(self.sources, self.singles, strict=True):
+            alone = set(d.names)
+            if alone != joint:
+                out.append({"recording": source, "alone_only": sorted(alone - joint), "joint_only": sorted(joint - alone)})
+        return out
+
     def to_json(self) -> dict:
         return plain({  # type: ignore[return-value]
             "joint": True,
@@ -176,6 +186,7 @@ class JointDiagnosis:
             "ambiguities": self.ambiguities,
             "lookalikes": self.lookalikes,
             "pairs": self.pairs,
+            "changes": self.changes(),
             "rows": self.rows,
             "single": [{"recording": s, "effects": [e.as_json() for e in d.effects], "ambiguities": d.ambiguities}
                        for s, d in zip(self.sources, self.singles, strict=True)],
@@ -291,6 +302,10 @@ def text(j: JointDiagnosis) -> list[str]:
     for e in j.effects:
         params = ", ".join(f"{k} = {v:.4g} ± {e.se.get(k, float('nan')):.2g}" for k, v in e.params.items())
         out.append(f"  {e.name}: {params} (t = {e.t:.1f}, {e.equation} equation)")
+    for c in j.changes():
+        parts = ([f"named {', '.join(c['alone_only'])}, which the recordings together do not ask for"] if c["alone_only"]
+                 else []) + ([f"missed {', '.join(c['joint_only'])}"] if c["joint_only"] else [])
+        out.append(f"  {c['recording']} alone {' and '.join(parts)}")
     if j.pairs:
         out.append("look-alikes one recording alone could not tell apart:")
     for p in j.pairs:
