@@ -21,11 +21,12 @@ import numpy as np
 from furuta_rt.config import RigConfig
 from furuta_rt.diagnose.judgement import verdict
 from furuta_rt.diagnose.judgement.locate import describe
-from furuta_rt.diagnose.regression.library import Context
+from furuta_rt.diagnose.regression.library import ARM, Context
 from furuta_rt.diagnose.regression.selection import EquationModel
 from furuta_rt.diagnose.stages import (
     arm_rests,
     arm_starts,
+    armlock,
     closed_loop,
     command_levels,
     consistency,
@@ -128,7 +129,9 @@ class Diagnosis:
             prediction=dict(s.prediction), decay=s.decay_report,
             decay_result=s.decay, stick=s.stick, peak=s.peak, starts=s.starts,
             not_predictive=s.gated.not_predictive if s.gated is not None else [], verdicts=verdicts,
-            summary=verdict.summary(verdicts), identification=s.identification, below_practical=list(s.below_practical),
+            summary=verdict.summary(verdicts) + armlock.summary_clause(
+                s.arm_lock, verdicts.get(ARM) is not None and verdicts[ARM].verdict != "not_assessed"),
+            identification=s.identification, below_practical=list(s.below_practical),
             arm_lock=s.arm_lock.as_json() if s.arm_lock is not None else None,
         )
 

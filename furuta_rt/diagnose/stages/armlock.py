@@ -198,3 +198,13 @@ def above_sliding(lock: ArmLock | None, found: dict[str, dict[str, float]]) -> l
                 f"Coulomb level found (Fc = {fc:.3g} N m): its breakaway torque is above the sliding level (stiction, "
                 "eq. 2), at least by that much"]
     return []
+
+
+def summary_clause(lock: ArmLock | None, arm_assessed: bool) -> str:
+    """What the rests add to the one-line summary when the arm equation could not be assessed (a short or slow file:
+    the rests are then the arm's whole story); '' otherwise."""
+    if lock is None or arm_assessed or lock.verdict == "known":
+        return ""
+    if lock.verdict == "dry friction":
+        return f"; the arm's rests at zero command: dry friction holding ≥ {lock.at_zero:.3g} N m"
+    return f"; the arm's rests under small commands: dry friction (≤ {lock.at_small:.3g} N m) or a dead band, alike here"
