@@ -274,15 +274,24 @@ def test_a_log_cut_short_while_replay_reads_it_is_one_line_exit_2_not_a_bus_erro
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["plain.mcap", "run.mcap"]
 
 
-def _spawned_child(daemon: DaemonProcess) -> int | None:
-    """pid of the daemon's logger (a multiprocessing 'spawn' child), once it exists."""
+def _spawned(daemon: DaemonProcess) -> list[int]:
+    """pids of the daemon's 'spawn' children in the order they started: the controller's design helper (first, gone
+    before the first tick), then the logger."""
+    spawned = []
     for pid in daemon.children():
         try:
             if b"spawn_main" in Path(f"/proc/{pid}/cmdline").read_bytes():
-                return pid
-        except OSError:
+                started = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19])
+                spawned.append((started, pid))
+        except (OSError, ValueError, IndexError):
             continue
-    return None
+    return [pid for _, pid in sorted(spawned)]
+
+
+def _logger_pid(daemon: DaemonProcess, *, starting: bool) -> int | None:
+    """pid of the daemon's logger once it exists (``starting``: once the design helper and it both run)."""
+    spawned = _spawned(daemon)
+    return spawned[-1] if len(spawned) >= (2 if starting else 1) else None
 
 
 def test_the_loser_of_a_race_for_the_live_view_port_says_so_and_advertises_nothing(tmp_path: Path) -> None:
@@ -297,7 +306,7 @@ def test_the_loser_of_a_race_for_the_live_view_port_says_so_and_advertises_nothi
     winner = socket.socket()
     try:
         end = time.monotonic() + TIMEOUT_S
-        while (logger := _spawned_child(daemon)) is None and daemon.proc.poll() is None and time.monotonic() < end:
+        while (logger := _logger_pid(daemon, starting=True)) is None and daemon.proc.poll() is None and time.monotonic() < end:
             time.sleep(0.001)
         assert logger is not None, daemon.stderr
         os.kill(logger, signal.SIGSTOP)  # past the run's port check, before its live view binds (seconds of imports)
@@ -328,7 +337,7 @@ def test_a_logger_killed_mid_run_is_said_at_once_and_loses_nothing_it_wrote(tmp_
     try:
         daemon.wait_for_line("→ balancing")
         time.sleep(2.0)
-        logger = _spawned_child(daemon)
+        logger = _logger_pid(daemon, starting=False)
         assert logger is not None
         t_kill = time.time_ns()
         os.kill(logger, signal.SIGKILL)
@@ -357,7 +366,7 @@ def test_a_logger_killed_during_start_up_is_one_line_at_once(tmp_path: Path) -> 
     daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "5", "--log", str(tmp_path / "run.mcap")])
     try:
         end = time.monotonic() + TIMEOUT_S
-        while (logger := _spawned_child(daemon)) is None and daemon.proc.poll() is None and time.monotonic() < end:
+        while (logger := _logger_pid(daemon, starting=True)) is None and daemon.proc.poll() is None and time.monotonic() < end:
             time.sleep(0.001)
         assert logger is not None, daemon.stderr
         os.kill(logger, signal.SIGKILL)
@@ -372,3 +381,23 @@ def test_a_logger_killed_during_start_up_is_one_line_at_once(tmp_path: Path) -> 
     errors = [line for line in daemon.stderr.splitlines() if "error" in line]
     assert len(errors) == 1 and "logger process died during start-up" in errors[0], out
     assert "balancing" not in out and took < 30, (took, out)
+
+
+def test_the_controller_design_helper_killed_during_start_up_is_one_line(tmp_path: Path) -> None:
+    """The gains and observer matrices are made in a helper process before the first tick (scipy stays out of the
+    real-time process): its death is one line naming it, exit 2, no device streaming, not a hang."""
+    daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "5", "--log", str(tmp_path / "run.mcap")])
+    try:
+        end = time.monotonic() + TIMEOUT_S
+        while _logger_pid(daemon, starting=True) is None and daemon.proc.poll() is None and time.monotonic() < end:
+            time.sleep(0.001)
+        os.kill(_spawned(daemon)[0], signal.SIGKILL)
+        rc = daemon.wait(timeout=TIMEOUT_S)
+    finally:
+        daemon.kill_group(signal.SIGKILL)
+    out = daemon.stderr + daemon.stdout
+    assert traceback_free(out), out
+    assert rc == 2, out
+    errors = [line for line in daemon.stderr.splitlines() if "error" in line]
+    assert len(errors) == 1 and "controller design process died" in errors[0], out
+    assert "balancing" not in out
