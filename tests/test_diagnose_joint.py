@@ -131,3 +131,32 @@ def test_cli_joint_json_and_refusals(tmp_path: Path, capsys: pytest.CaptureFixtu
         assert main(argv) == 2
         err = capsys.readouterr().err
         assert needle in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_spring_constant_is_per_recording(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A cable spring −k(φ − φ0) on two runs whose arm encoders were zeroed 0.2 rad apart: k is the rig's (one column),
+    k·φ0 the run's (one column per recording, zero on the other's rows); both φ0 read back within four standard
+    errors, and one shared constant fits the two runs worse."""
+    from furuta_rt.diagnose import joint
+    from furuta_rt.diagnose.regression.selection import EquationModel
+
+    rig, k = load_rig("thesis"), 0.05
+    t = np.arange(5000) / rig.control.rate_hz
+    ref = 0.3 * np.sin(2 * np.pi * t / 3.0) + 0.15 * np.sin(2 * np.pi * t / 1.1)
+    recs = [run_closed_loop(rig, 10.0, effects=Effects.model_validate({"arm_spring": {"k": k, "phi0": phi0}}),
+                            seed=20 + i, reference=ref, substep_hz=2000) for i, phi0 in enumerate((0.0, 0.2))]
+    opts = Options()
+    em = joint.JointEquationModel([EquationModel(joint.context(r, rig, opts, []), "arm", opts.thresholds) for r in recs])
+    spec = em.spec0().with_effect("arm_spring")
+    X, owners = em.design(spec)
+    n0 = em.members[0].ctx.prep.n
+    assert X.shape[1] == 3 and dict(owners)["arm_spring"] == slice(0, 2)
+    assert np.all(X[n0:, 1] == 0.0) and np.all(X[:n0, 2] == 0.0) and np.all(X[n0:, 2] == 1.0)
+    ev = em.evaluate(spec)
+    kh, se_k = ev.params["arm_spring"]["k"], ev.se["arm_spring"]["k"]
+    assert abs(kh - k) <= 4 * se_k, (kh, se_k)
+    c, se_c = ev.fit.coef, ev.fit.se  # (−φ: k, 1: k·φ0 of the first run, 1: k·φ0 of the second)
+    assert abs(c[1] - k * 0.0) <= 4 * se_c[1] and abs(c[2] - k * 0.2) <= 4 * se_c[2], (c, se_c)
+    monkeypatch.setattr(joint, "PER_RECORDING", {})
+    shared = em.evaluate(spec)
+    assert shared.fit.cv_sse > 1.5 * ev.fit.cv_sse, (shared.fit.cv_sse, ev.fit.cv_sse)
