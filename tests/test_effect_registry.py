@@ -28,6 +28,11 @@ def test_every_registered_effect_is_a_config_field_an_assignment_and_a_consisten
     for name, cand in CANDIDATES.items():  # the regression sees the registry's row, size parameter and look-alikes
         cls = EFFECT_TYPES[name]
         assert (cand.equation, cand.main, cand.lookalikes) == (cls.equation, cls.main, cls.lookalikes)
+    # the registry's sign rule (a parameter bounded below by 0 is > 0) judges the torque laws only; a spelled-out
+    # effect keeps the library's own rule (a dead band of width 0 is judged by its kinks, not refused by its sign)
+    rig = load_rig("thesis")
+    assert CANDIDATES["input_deadzone"].plausible({"width": 0.0}, rig)
+    assert not CANDIDATES["arm_air_drag"].plausible({"c": 0.0}, rig) and CANDIDATES["arm_air_drag"].plausible({"c": 1e-4}, rig)
     # every torque-law effect is a regression candidate without any entry of its own in the library
     assert {n for n, c in EFFECT_TYPES.items() if issubclass(c, JointTorque)} <= set(CANDIDATES)
 

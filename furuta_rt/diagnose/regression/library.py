@@ -507,7 +507,9 @@ class Candidate:
                 return abs(par["offset"]) < 0.3
             case "arm_lugre":
                 return par.get("Fs_minus_Fc", par.get("Fs", 0.0) - par.get("Fc", 0.0)) > 0
-        return self.effect.admissible(par)
+        if issubclass(self.effect, JointTorque):  # a torque law: its parameters bounded below by 0 must be > 0
+            return self.effect.admissible(par)
+        return True
 
 
 def nominal_latency(rig: RigConfig) -> float:
