@@ -478,8 +478,8 @@ def realistic_cases() -> list[RealisticCase]:
     short single step from rest shaped like the real macstepien recordings.
     The first eleven are the in-sample part (looked at while building); the ``held_out`` ones (other seeds, sizes
     and combinations) are listed and printed apart and are not tuned on. Held-out cases that a fix was made on are
-    moved to the in-sample part and marked so (201, 205, 211 and 401: fifth session); 207–214 were added then, as a
-    new held-out set (213 and 214 after the arm-starts stage, furuta_rt.diagnose.stages.onset, was built on 211 and 401)."""
+    in the in-sample part and marked so (201, 205, 211 and 401); 207–214 are the held-out set that replaces them (213
+    and 214 not looked at while the arm-starts stage, furuta_rt.diagnose.stages.onset, was built on 211 and 401)."""
     spring = ("arm_spring.k=0.002", "arm_spring.phi0=0.1", "arm_coulomb.Fc=0.002")
     spring_m = ("arm_spring.k=0.01", "arm_spring.phi0=-0.2", "arm_coulomb.Fc=0.006")
     return [
@@ -494,7 +494,7 @@ def realistic_cases() -> list[RealisticCase]:
         _r("macstepien", "chirp", 109, 0.3, 2.0, 4, *spring_m),
         _r("macstepien", "balance", 110, 3.0, 1.2, 0),
         _r("macstepien", "single_step", 111, 7.0, 0.5, 1, duration=5.0),  # shaped like the real step recordings
-        _r("qube_servo2", "sine", 201, 8.0, 0.8, 2.5),  # held out until the fifth session (a fix was made on it)
+        _r("qube_servo2", "sine", 201, 8.0, 0.8, 2.5),  # in-sample: a fix was made on it
         _r("macstepien", "balance", 205, 0.7, 0.8, 1.5, "arm_bias.tau=-0.002"),  # likewise
         # held out
         _r("qube_servo2", "swingup", 202, 1.2, 1.8, 1, "arm_bias.tau=0.0004", held_out=True),
@@ -518,7 +518,7 @@ def gross_gain_cases() -> list[RealisticCase]:
     per-unit: the real macstepien 0.1 / 0.575 files spin the arm ~10× faster per unit than its volt files), on steps of
     several levels and on one step from rest (a two-level command: only gain/damping through the speed per volt, no
     kink of the command map, can be read there). Named "… gross×g"; the first five in-sample, the last two held out
-    (generated once, not tuned on; 401 moved in-sample in the fifth session, a fix was made on it)."""
+    (generated once, not tuned on; 401 is in-sample: a fix was made on it)."""
     cases = [
         (_r("macstepien", "single_step", 301, 50.0, 1.0, 1, duration=6.0), 50),
         (_r("macstepien", "step", 302, 0.1, 1.0, 1), 0.1),

@@ -27,10 +27,10 @@ Channels:
                   and every TIMING_FIELDS field but seq (NaN / -1 where a writer gave no timing). The schema
                   data is JSON naming the fields and their types in order (tick_batch_schema()). log_time =
                   publish_time = the first record's time_ns. A batch is written before the JSON messages of
-                  its ticks, so a log cut short keeps every tick its JSON channels kept. Written since
-                  furuta-rt logs carry it (2026-11-25); readers take ticks and timing from it when a log has
-                  it (a few numpy calls per chunk instead of a JSON decode per tick) and from /furuta/tick and
-                  /furuta/timing otherwise.
+                  its ticks, so a log cut short keeps every tick its JSON channels kept. Every log furuta-rt
+                  writes carries it; readers take ticks and timing from it when a log has it (a few numpy
+                  calls per chunk instead of a JSON decode per tick) and from /furuta/tick and /furuta/timing
+                  otherwise (older logs, other writers).
 Metadata records:
   "rig"     {"name": ..., "toml": <the rig config as TOML text>, "json": <RigConfig JSON>}
   "run"     {"mode": compensation mode, "gains": "[l1,l2,l3,l4]" JSON, "rate_hz": ..., "port": ..., "version": ...}
