@@ -3,9 +3,10 @@
 One recording may not separate two look-alikes (an input gain and an arm inertia on balancing alone, a spring and an
 inertia on one sine, a dead band and dry friction at one speed); a designed experiment's recording adds the rows that
 do. The joint fit stacks the recordings' inverse-dynamics rows (each recording keeps its own states, kernels and
-time blocks) and runs diagnose's own selection (regression.selection.EquationModel.select, refit, the significance
-and backward passes) and its own look-alike judgement (stages.lookalikes.check_lookalikes: the paired t of the held-out block
-errors, the κ test for gain ↔ inertia, the rest test for a bias) on the stack. The physical parameters are shared;
+time blocks) and runs diagnose's own selection (stages.equations.select_in: forward selection, refit, the significance
+and backward passes; not the latency stage, which reads one recording's time line) and its own look-alike judgement
+(stages.lookalikes.check_lookalikes: the paired t of the held-out block errors, the κ test for gain ↔ inertia, the rest
+test for a bias; stages.lookalikes.swapped where the look-alike wins) on the stack. The physical parameters are shared;
 a nuisance term that belongs to a run, not to the rig, gets one column per recording: the arm encoder's zero is set
 when a run starts, so a cable spring's −k(φ − φ0) has its constant k·φ0 per recording.
 
@@ -30,9 +31,9 @@ from furuta_rt.diagnose.regression.fitting import Blocks
 from furuta_rt.diagnose.regression.library import ARM, PEND, Context, InputPath
 from furuta_rt.diagnose.regression.selection import EquationModel, Spec
 from furuta_rt.diagnose.regression.states import prepare
-from furuta_rt.diagnose.stages.equations import completed_pairs, fair_baseline, significant
+from furuta_rt.diagnose.stages.equations import fair_baseline, select_in
 from furuta_rt.diagnose.stages.findings import EquationResult, Found, Options, found_in, refit
-from furuta_rt.diagnose.stages.lookalikes import SEPARATION_Z, check_lookalikes, gain_inertia_separation
+from furuta_rt.diagnose.stages.lookalikes import SEPARATION_Z, check_lookalikes, gain_inertia_separation, swapped
 from furuta_rt.diagnose.stages.start import arm_sigma, balancing_span
 from furuta_rt.errors import UserError
 from furuta_rt.recording import Recording
@@ -202,14 +203,6 @@ def context(rec: Recording, rig: RigConfig, opts: Options, notes: list[str]) -> 
     return Context.build(prep, rig, opts.sigma_arm or arm_sigma(prep), opts.sigma_pend, opts.sigma_fine)
 
 
-def _select(em: EquationModel) -> EquationResult:
-    nominal, selected, trace = em.select()
-    if selected.spec.effects:
-        selected = refit(em, selected.spec)
-    selected = completed_pairs(em, significant(em, selected, trace), trace)
-    return EquationResult(em.equation, em.n_rows, nominal, selected, trace, None)  # type: ignore[arg-type]
-
-
 def needed_factor(entry: dict, opts: Options) -> float:
     """How many times the joint rows an unresolved pair needs to clear a test that could decide it (both grow as the
     square root of the rows; the smaller factor): the paired t to ``ambiguity_t``, when the held-out errors already
@@ -245,12 +238,10 @@ def diagnose_joint(recordings: list[tuple[str, Recording]], rig: RigConfig, opti
         members = [EquationModel(c, eq, opts.thresholds) for c in ctxs]
         ems[eq] = JointEquationModel(members)
         rows[eq] = [m.n_rows for m in members]
-        res[eq] = _select(ems[eq])
+        res[eq] = select_in(ems[eq], settle_latency=False)
     ambiguities, lookalikes, swaps = check_lookalikes(ems, res, opts)  # type: ignore[arg-type]
     for eq, alt in swaps.items():  # the look-alike test favours the alternative: it becomes the equation's model
-        r = res[eq]
-        final = completed_pairs(ems[eq], significant(ems[eq], refit(ems[eq], alt.spec), r.trace), r.trace)
-        res[eq] = EquationResult(eq, r.rows, r.nominal, final, r.trace, r.location)
+        res[eq] = swapped(ems[eq], res[eq], alt)
     found = [f for eq in (ARM, PEND) for f in found_in(ems[eq], res[eq], notes)]
     total_s = sum(c.prep.n * c.prep.dt for c in ctxs)
     for a in ambiguities:

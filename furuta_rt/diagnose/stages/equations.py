@@ -5,6 +5,8 @@ collinear pair completed or judged together."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from furuta_rt.diagnose.judgement.locate import locate
@@ -37,12 +39,22 @@ def stage(s: State) -> State:
 def select_equation(ctx: Context, eq: str, opts: Options, rows: np.ndarray | None = None) -> tuple[EquationModel, EquationResult]:
     """Forward selection and refit of one equation's effects (on ``rows`` of its usable rows, if given)."""
     em = EquationModel(ctx, eq, opts.thresholds, row_filter=rows)
+    r = select_in(em)
+    return em, replace(r, location=locate(ctx, eq, em.target(em.spec0()), em.row_mask))
+
+
+def select_in(em: EquationModel, settle_latency: bool = True) -> EquationResult:
+    """``em``'s effects: forward selection, the nonlinear parameters re-profiled together (findings.refit), the latency
+    settled (``settle_latency``: stages.latency reads one recording's time line, so a joint fit of several skips it),
+    then the final significance pass and the collinear pairs (``significant``, ``completed_pairs``). No location:
+    ``select_equation`` adds the recording's; a joint fit of several has none."""
     nominal, selected, trace = em.select()
     if selected.spec.effects:
         selected = refit(em, selected.spec)
-    selected = completed_pairs(em, significant(em, latency.settle(em, selected, trace), trace), trace)
-    loc = locate(ctx, eq, em.target(em.spec0()), em.row_mask)
-    return em, EquationResult(eq, em.n_rows, nominal, selected, trace, loc)
+    if settle_latency:
+        selected = latency.settle(em, selected, trace)
+    selected = completed_pairs(em, significant(em, selected, trace), trace)
+    return EquationResult(em.equation, em.n_rows, nominal, selected, trace, None)  # type: ignore[arg-type]
 
 
 def significant(em: EquationModel, ev: Evaluation, trace: list[dict] | None = None) -> Evaluation:

@@ -22,16 +22,22 @@ def stage(s: State) -> State:
     """The look-alike checks; an equation whose look-alike alternative the data favours is refitted with it."""
     ambiguities, lookalikes, swaps = check_lookalikes(s.ems, s.res, s.opts)
     for eq, alt in swaps.items():
-        r, em = s.res[eq], s.ems[eq]
-        trace = list(r.trace)  # the selection's record, continued by the final checks of the swapped model
-        final = completed_pairs(em, significant(em, refit(em, alt.spec), trace), trace)
-        s = s.with_result(eq, EquationResult(eq, r.rows, r.nominal, final, trace, r.location))
+        em = s.ems[eq]
+        s = s.with_result(eq, swapped(em, s.res[eq], alt))
         s = s.replace_found([f for f in s.found if not (f.equation == eq and f.source == "inverse dynamics")]
                             + found_in(em, s.res[eq], []))
     if s.stick is not None:  # the stick windows' own look-alikes
         ambiguities += s.stick.ambiguities
         lookalikes += s.stick.lookalikes
     return s.with_(ambiguities=ambiguities, lookalikes=lookalikes)
+
+
+def swapped(em: EquationModel, r: EquationResult, alt: Evaluation) -> EquationResult:
+    """Equation result ``r`` with its look-alike alternative ``alt`` as the model: refitted, then the final
+    significance pass and the collinear pairs, its trace a copy of the selection's continued by those checks."""
+    trace = list(r.trace)
+    final = completed_pairs(em, significant(em, refit(em, alt.spec), trace), trace)
+    return EquationResult(r.equation, r.rows, r.nominal, final, trace, r.location)
 
 
 EXPERIMENTS: dict[frozenset[str], str] = {
