@@ -528,7 +528,7 @@ def _removes_where_it_acts(a: float, sxx: np.ndarray, syy: np.ndarray) -> float:
 def _null_spread(remaining: dict[str, Remaining], cols: dict[str, np.ndarray]) -> float:
     """The spread of a cause's coefficient on sensor noise alone: the rms of the coefficients fitted to the noise
     floor's draws (the same weights). The blocked jackknife alone under-states it where the noise has structure
-    (the encoder's ramps in slow motion, sticks): on the simulator's null cases it gave |t| up to 7."""
+    (the encoder's ramps in slow motion, sticks): on the simulator's null cases it gives |t| up to 7."""
     num = den = 0.0
     coefs = []
     draws = min(len(d) for _, _, _, d in remaining.values())

@@ -127,7 +127,7 @@ def identification(em: EquationModel, selected: Evaluation) -> dict | None:
 def _unphysical(joint: dict[str, float]) -> str:
     """Why the joint fit's gain, arm inertia or damping is impossible (≤ 0), or '' when none is. Such a fit (a balancing
     recording where the arm barely moves: an arm inertia of −3.2e-5 kg m² with a gain of 0.62, whose 'pinned' speed
-    per volt came out 37 ± 1.4 against a true 24) pins nothing: its combinations are not reported."""
+    per volt comes out 37 ± 1.4 against a true 24) pins nothing: its combinations are not reported."""
     bad = [f"{name.replace('_', ' ')} {joint[name]:.3g}" for name in ("input_gain", "arm_inertia", "arm_damping")
            if not joint[name] > 0]
     return ("the joint fit gives " + ", ".join(bad) + " (≤ 0, impossible): this recording does not pin the arm's gain, "

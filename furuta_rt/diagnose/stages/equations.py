@@ -105,8 +105,7 @@ def _group_pays(em: EquationModel, ev: Evaluation, group: list[str]) -> bool:
     judged as one step: the model without all of them against the model with them (the inertia re-profiled in each
     held-out fold, as a single step's is), by the selection's rules — paired t over the blocks ≥ t_min, or a held-out
     gain ≥ strong_gain with t ≥ t_strong or gained in all blocks but one — and the BIC penalty of as many parameters.
-    On an independent simulator's null recording a gain 0.61 + inertia 0.6× pair had removed 0.9 % of the held-out
-    error at paired t < 1."""
+    On a null recording a gain 0.61 + inertia 0.6× pair can remove 0.9 % of the held-out error at paired t < 1."""
     rest = ev.spec
     for n in group:
         rest = rest.without(n)
@@ -182,7 +181,7 @@ def fair_baseline(em: EquationModel, selected: Evaluation, name: str) -> Evaluat
     """The selected model scored as its look-alike alternative is: ``name``'s nonlinear parameter (ΔJ, a delay, a
     width) re-profiled inside each held-out fold, as ``evaluate_with`` does for the alternative. The refitted
     selection holds that parameter at its full-data optimum, so its held-out error is optimistic next to a profiled
-    alternative's (on a gain ↔ inertia tie that bias alone read as paired t = 3.4 for the inertia)."""
+    alternative's (on a gain ↔ inertia tie that bias alone can read as paired t = 3.4 for the inertia)."""
     if not CANDIDATES[name].nonlinear:
         return selected
     return em.evaluate_with(selected.spec.without(name), name)

@@ -100,7 +100,7 @@ def make_plan(prep, rig: RigConfig, max_windows: int, horizon_s: float | None = 
     (the kernel's reach). Interleaved rather than contiguous, so that every fold trains on every part of the
     recording: where the informative motion sits in one stretch (a swing-up before a long balance, one step from
     rest), a contiguous fold holding it would be predicted with parameters fitted only on the rest, where the
-    effect is barely excited (a pendulum damping of 1.8e-5 came out 6.6e-4 there)."""
+    effect is barely excited (a pendulum damping of 1.8e-5 can come out 6.6e-4 there)."""
     horizon = verify.horizon_ticks(rig, prep.dt) if horizon_s is None else max(5, round(horizon_s / prep.dt))
     starts, candidates = verify.informative_starts(prep, horizon, max_windows)
     folds = min(N_FOLDS, len(starts))
