@@ -143,8 +143,9 @@ def with_theta_filter(rig: RigConfig, text: str) -> RigConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    from furuta_rt.diagnose import Options, diagnose
+    from furuta_rt.diagnose import Options
     from furuta_rt.diagnose.report.render import OUTPUTS, check_directory, text, write_report
+    from furuta_rt.diagnose.segments import SegmentedDiagnosis, diagnose_recording, split_at_gaps
 
     if len(args.recording) > 1:
         return run_joint(args)
@@ -162,7 +163,15 @@ def run(args: argparse.Namespace) -> int:
     require_plausible(rig, args.config or f"the rig {rig.name!r} of {args.recording}")
     if args.theta_filter is not None:
         rig = with_theta_filter(rig, args.theta_filter)
-    d = diagnose(rec, rig, Options(closed_loop=not args.no_closed_loop, check_conventions=not args.skip_convention_check))
+    split = split_at_gaps(rec)  # a recording with gaps is diagnosed as the stretches between them
+    if args.report and len(split.segments) > 1:
+        raise UserError(f"--report writes the page of one continuous recording; {args.recording} splits into "
+                        f"{len(split.segments)} segments at its gaps: use --json")
+    opts = Options(closed_loop=not args.no_closed_loop, check_conventions=not args.skip_convention_check)
+    d = diagnose_recording(rec, rig, opts, split)
+    if isinstance(d, SegmentedDiagnosis):
+        _print_and_write(args, d.to_json(), d.text())
+        return 0
     _print_and_write(args, d.to_json(), text(d))
     if args.report:
         try:

@@ -108,8 +108,9 @@ class JointEquationModel(EquationModel):
     """One equation of eq. 4 over several recordings: rows stacked, each recording's time blocks kept (the
     held-out blocks never span two recordings), columns shared but for PER_RECORDING ones."""
 
-    def __init__(self, members: list[EquationModel]) -> None:
+    def __init__(self, members: list[EquationModel], per_member: dict[str, tuple[int, ...]] | None = None) -> None:
         self.members = members
+        self.per_member = per_member  # None: PER_RECORDING; {} for segments of one recording (one encoder zero)
         self.ctx = JointContext([m.ctx for m in members])  # type: ignore[assignment]
         self.equation = members[0].equation
         self.th = members[0].th
@@ -138,7 +139,7 @@ class JointEquationModel(EquationModel):
         owners = parts[0][1]
         extra = []
         for name, sl in owners:
-            for j in PER_RECORDING.get(name, ()):
+            for j in (PER_RECORDING if self.per_member is None else self.per_member).get(name, ()):
                 col = sl.start + j
                 for i in range(1, len(self.members)):
                     own = np.zeros(X.shape[0])
@@ -220,6 +221,25 @@ def needed_factor(entry: dict, opts: Options) -> float:
     return min(out) if out else float("inf")
 
 
+def joint_fit(ctxs: list[Context], opts: Options, notes: list[str], per_member: dict[str, tuple[int, ...]] | None = None
+              ) -> tuple[list[Found], list[dict], list[dict], dict[str, list[int]]]:
+    """Each equation's selection and the look-alike tests on the members' rows stacked (JointEquationModel): the
+    effects found, the look-alikes left unresolved and told apart, and per equation the rows each member gave."""
+    ems: dict[str, JointEquationModel] = {}
+    res: dict[str, EquationResult] = {}
+    rows: dict[str, list[int]] = {}
+    for eq in (ARM, PEND):
+        members = [EquationModel(c, eq, opts.thresholds) for c in ctxs]
+        ems[eq] = JointEquationModel(members, per_member)
+        rows[eq] = [m.n_rows for m in members]
+        res[eq] = select_in(ems[eq], settle_latency=False)
+    ambiguities, lookalikes, swaps = check_lookalikes(ems, res, opts)  # type: ignore[arg-type]
+    for eq, alt in swaps.items():  # the look-alike test favours the alternative: it becomes the equation's model
+        res[eq] = swapped(ems[eq], res[eq], alt)
+    found = [f for eq in (ARM, PEND) for f in found_in(ems[eq], res[eq], notes)]
+    return found, ambiguities, lookalikes, rows
+
+
 def diagnose_joint(recordings: list[tuple[str, Recording]], rig: RigConfig, options: Options | None = None,
                    singles: list[Diagnosis] | None = None) -> JointDiagnosis:
     """Diagnose ``recordings`` (name, recording) of one rig jointly (see the module docstring). ``singles``: their
@@ -231,18 +251,7 @@ def diagnose_joint(recordings: list[tuple[str, Recording]], rig: RigConfig, opti
     notes: list[str] = []
     singles = singles or [diagnose(rec, rig, opts) for _, rec in recordings]
     ctxs = [context(rec, rig, opts, []) for _, rec in recordings]
-    ems: dict[str, JointEquationModel] = {}
-    res: dict[str, EquationResult] = {}
-    rows: dict[str, list[int]] = {}
-    for eq in (ARM, PEND):
-        members = [EquationModel(c, eq, opts.thresholds) for c in ctxs]
-        ems[eq] = JointEquationModel(members)
-        rows[eq] = [m.n_rows for m in members]
-        res[eq] = select_in(ems[eq], settle_latency=False)
-    ambiguities, lookalikes, swaps = check_lookalikes(ems, res, opts)  # type: ignore[arg-type]
-    for eq, alt in swaps.items():  # the look-alike test favours the alternative: it becomes the equation's model
-        res[eq] = swapped(ems[eq], res[eq], alt)
-    found = [f for eq in (ARM, PEND) for f in found_in(ems[eq], res[eq], notes)]
+    found, ambiguities, lookalikes, rows = joint_fit(ctxs, opts, notes)
     total_s = sum(c.prep.n * c.prep.dt for c in ctxs)
     for a in ambiguities:
         factor = needed_factor(a, opts)
@@ -290,9 +299,7 @@ def text(j: JointDiagnosis) -> list[str]:
            f"(arm rows {' + '.join(map(str, j.rows.get(ARM, [])))}, pendulum rows "
            f"{' + '.join(map(str, j.rows.get(PEND, [])))})"]
     out.append("effects (shared by all recordings):" if j.effects else "effects: none (the nominal model fits)")
-    for e in j.effects:
-        params = ", ".join(f"{k} = {v:.4g} ± {e.se.get(k, float('nan')):.2g}" for k, v in e.params.items())
-        out.append(f"  {e.name}: {params} (t = {e.t:.1f}, {e.equation} equation)")
+    out += [effect_line(e) for e in j.effects]
     for c in j.changes():
         parts = ([f"named {', '.join(c['alone_only'])}, which the recordings together do not ask for"] if c["alone_only"]
                  else []) + ([f"missed {', '.join(c['joint_only'])}"] if c["joint_only"] else [])
@@ -317,6 +324,12 @@ def text(j: JointDiagnosis) -> list[str]:
             out.append(f"  joint look-alike {' ↔ '.join(a['effects'])}: {a['reason']}")
     out += [f"note: {n}" for n in j.notes]
     return out
+
+
+def effect_line(e: Found) -> str:
+    """One found effect as a line of text: its parameters ± their standard errors."""
+    params = ", ".join(f"{k} = {v:.4g} ± {e.se.get(k, float('nan')):.2g}" for k, v in e.params.items())
+    return f"  {e.name}: {params} (t = {e.t:.1f}, {e.equation} equation)"
 
 
 def pair_test(em: EquationModel, truth: str, rival: str, base: Spec | None = None) -> dict:

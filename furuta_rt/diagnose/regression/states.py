@@ -270,6 +270,16 @@ MAX_MISSING_SHARE = 0.05  # more non-finite samples than this share of a column:
 MAX_GAP_SECONDS = 0.05  # a longer run of non-finite samples (or of missing time) is refused
 
 
+def edge_margin(dt: float) -> int:
+    """Samples at each end of a stretch within reach of the widest kernel (MAX_SIGMA): not valid rows."""
+    return math.ceil(5 * MAX_SIGMA / dt) + 2
+
+
+def long_enough(n: int, dt: float) -> bool:
+    """Whether a stretch of ``n`` samples at period ``dt`` is one prepare() accepts (samples, seconds, valid rows)."""
+    return n >= MIN_SAMPLES and (n - 1) * dt >= MIN_SECONDS and n - 2 * edge_margin(dt) >= MIN_VALID
+
+
 def _gaps(bad: np.ndarray) -> list[tuple[int, int]]:
     """(start, stop) index ranges of the runs of True in ``bad``."""
     edges = np.diff(np.concatenate([[0], bad.astype(int), [0]]))
@@ -353,7 +363,7 @@ def prepare(rec: Recording, rig: RigConfig, bessel_cutoff: float | str | None = 
                      "resampled onto a uniform grid (angles interpolated, the command held)")
         t = grid
     cutoff = rig.sensors.bessel_cutoff if bessel_cutoff == "config" else bessel_cutoff
-    margin = math.ceil(5 * MAX_SIGMA / dt) + 2
+    margin = edge_margin(dt)
     valid = np.zeros(len(t), dtype=bool)
     valid[margin : len(t) - margin] = True
     if valid.sum() < MIN_VALID:
