@@ -118,3 +118,14 @@ def test_all_gaps_is_refused_in_one_line(tmp_path) -> None:
         write_csv(r, path)
         code, out, err = cli(str(path), "--no-closed-loop")
         assert code == 2 and err.count("\n") == 1 and words in err and not out, err
+
+
+def test_page_and_joint_fit_refuse_a_split_recording_in_one_line(files, tmp_path) -> None:
+    """The report page and the joint fit of several recordings take a continuous recording: one line each, nothing
+    written."""
+    report = tmp_path / "report"
+    code, out, err = cli(str(files["null"]), "--report", str(report), "--no-closed-loop")
+    assert code == 2 and err.count("\n") == 1 and "splits into 3 segments at its gaps: use --json" in err and not out
+    assert not report.exists() or not any(report.iterdir())
+    code, out, err = cli(str(files["null"]), str(files["arm_coulomb"]), "--no-closed-loop")
+    assert code == 2 and err.count("\n") == 1 and "3 gap(s)" in err and "diagnose it alone" in err and not out, err
