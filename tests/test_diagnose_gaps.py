@@ -16,9 +16,10 @@ import pytest
 
 from benchmarks import suite
 from furuta_rt.config import load_rig
-from furuta_rt.diagnose import Options, diagnose
+from furuta_rt.diagnose import Diagnosis, Options, diagnose
 from furuta_rt.diagnose.segments import GAP_PERIODS, split_at_gaps
 from furuta_rt.io.csv import write_csv
+from furuta_rt.io.mcap_log import write_recording_mcap
 from furuta_rt.recording import Recording
 
 SECONDS = 20.0
@@ -78,11 +79,17 @@ def test_short_holes_are_filled_longer_ones_split() -> None:
         assert s.gaps == gaps and len(s.segments) == gaps + 1
 
 
-def test_concealed_arm_friction_found_across_gaps(files) -> None:
-    """The arm's Coulomb friction is named from the three stretches, its level within 3 of the segmented fit's
-    standard errors of the gap-free recording's (the stretches are a subset of the same data)."""
+@pytest.fixture(scope="module")
+def gap_free() -> Diagnosis:
     full = diagnose(recording("arm_coulomb"), load_rig("thesis"), Options(closed_loop=False))
     assert full.names == ["arm_coulomb"]
+    return full
+
+
+def test_concealed_arm_friction_found_across_gaps(files, gap_free) -> None:
+    """The arm's Coulomb friction is named from the three stretches, its level within 3 of the segmented fit's
+    standard errors of the gap-free recording's (the stretches are a subset of the same data)."""
+    full = gap_free
     code, out, err = cli(str(files["arm_coulomb"]), "--json", "-", "--no-closed-loop")
     assert code == 0 and "Traceback" not in err, err
     d = json.loads(out)
@@ -129,3 +136,19 @@ def test_page_and_joint_fit_refuse_a_split_recording_in_one_line(files, tmp_path
     assert not report.exists() or not any(report.iterdir())
     code, out, err = cli(str(files["null"]), str(files["arm_coulomb"]), "--no-closed-loop")
     assert code == 2 and err.count("\n") == 1 and "3 gap(s)" in err and "diagnose it alone" in err and not out, err
+
+
+def test_a_daemon_log_with_one_pause_is_diagnosed_as_two_stretches(gap_free, tmp_path) -> None:
+    """A log of the daemon with one 60 ms pause (a busy machine): two stretches fitted together, the same friction."""
+    rec = recording("arm_coulomb")
+    keep = (rec.t < 10.0) | (rec.t >= 10.06)
+    path = tmp_path / "paused.mcap"
+    write_recording_mcap(Recording(t=rec.t[keep], theta=rec.theta[keep], phi=rec.phi[keep], u=rec.u[keep],
+                                   theta_dot=rec.theta_dot[keep]), path, load_rig("thesis"))
+    code, out, err = cli(str(path), "--json", "-", "--no-closed-loop")
+    assert code == 0 and "Traceback" not in err, err
+    d = json.loads(out)
+    assert (d["gaps"]["gaps"], len(d["gaps"]["segments"]), d["gaps"]["dropped"]) == (1, 2, 0)
+    assert [e["name"] for e in d["effects"]] == ["arm_coulomb"]
+    fc, se = d["effects"][0]["params"]["Fc"], d["evidence"][0]["se"]["Fc"]
+    assert abs(fc - gap_free.effects[0].params["Fc"]) <= 3 * se, (fc, se)
