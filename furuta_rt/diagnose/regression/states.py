@@ -352,7 +352,8 @@ def prepare(rec: Recording, rig: RigConfig, bessel_cutoff: float | str | None = 
     if len(holes):
         i = int(holes[np.argmax(steps[holes])])
         raise UserError(f"recording has {len(holes)} gap(s) in time, the longest {steps[i]:.3g} s at t = {t[i]:.4g} s; "
-                        f"the diagnosis bridges at most {MAX_GAP_SECONDS * 1e3:.0f} ms: cut the recording there")
+                        f"one stretch bridges at most {MAX_GAP_SECONDS * 1e3:.0f} ms: diagnose it with "
+                        "furuta_rt.diagnose.diagnose_recording (as the CLI does), which splits it at its gaps")
     jitter = float(np.max(np.abs(steps - dt))) / dt
     resampled = jitter > 0.05
     if resampled:  # resample onto a uniform grid (u held, the rest interpolated)
