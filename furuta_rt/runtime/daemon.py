@@ -339,6 +339,10 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
         # start-up in parallel: the controller's design (a helper process: scipy stays out of this one), the
         # logger process, hil-mock (a few seconds of imports each) and, here, the loop's own imports; the device
         # handshake comes last, right before the first tick
+        if opts.mock_args is None:  # a real port: missing, busy or not permitted is said at once, before any helper
+            assert opts.port is not None
+            hw = SerialHardware(opts.port, opts.baud)
+            hw.open()
         design = DesignProcess(rig, opts.gains)
         if opts.log_path or opts.foxglove_port is not None:
             children.spawn_logger(LogSetup(path=opts.log_path, rig=rig, foxglove_port=opts.foxglove_port,
@@ -363,8 +367,9 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
         if mock_start is not None:
             mock_proc, port = mock_start.result()
         assert port is not None
-        hw = SerialHardware(port, opts.baud)
-        hw.open()
+        if hw is None:
+            hw = SerialHardware(port, opts.baud)
+            hw.open()
         warnings += hw.warnings
         children.wait_logger()
         children.watch_logger(_say)

@@ -44,8 +44,14 @@ class DesignProcess:
         ctx = multiprocessing.get_context("spawn")
         self._conn, child_end = Pipe(duplex=False)
         self._proc = ctx.Process(target=_make, args=(child_end, rig, gains), name="furuta-rt-design")
-        self._proc.start()
-        child_end.close()
+        try:
+            self._proc.start()
+        except (OSError, ImportError) as err:  # no interpreter to start (unreadable, gone): one line, nothing started
+            self._conn.close()
+            raise UserError(f"cannot start the controller design process ({type(err).__name__}: {err}); "
+                            "nothing was started") from None
+        finally:
+            child_end.close()
 
     def result(self, timeout: float = DESIGN_TIMEOUT_S) -> Any:
         """The ControllerDesign; UserError (one line) if the design failed or the helper died or hung."""
