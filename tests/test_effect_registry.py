@@ -80,7 +80,7 @@ def test_diagnose_finds_air_drag_concealed_in_a_recording_and_not_where_there_is
     standard error under 5 % of it (measured: 0.01001 ± 0.0001); the same run without it names no effect."""
     from furuta_rt.diagnose import Options, diagnose
 
-    opts = Options(closed_loop=False)
+    opts = Options(closed_loop=False, also_search=("arm_air_drag",))  # outside the default search: asked for
     rig, rec = _balancing(C_DRAG)
     d = diagnose(rec, rig, opts)
     (drag,) = [e for e in d.effects if e.name == "arm_air_drag"]
@@ -89,3 +89,23 @@ def test_diagnose_finds_air_drag_concealed_in_a_recording_and_not_where_there_is
     assert d.verdicts["arm"].verdict == "explained"
     rig, rec = _balancing(0.0)
     assert diagnose(rec, rig, opts).names == []
+
+
+def test_air_drag_is_tried_only_when_asked() -> None:
+    """Outside the default search (its column trades with the arm inertia and the input gain on balancing data):
+    `diagnose --also-search arm_air_drag` asks for it; a name that is searched already, or no effect, is one line."""
+    import argparse
+
+    from furuta_rt.cli.diagnose import _options
+    from furuta_rt.errors import UserError
+
+    assert not CANDIDATES["arm_air_drag"].searched and CANDIDATES["arm_viscous"].searched
+
+    def ns(*names: str) -> argparse.Namespace:
+        return argparse.Namespace(no_closed_loop=True, skip_convention_check=False, also_search=list(names))
+
+    assert _options(ns("arm_air_drag")).also_search == ("arm_air_drag",) and _options(ns()).also_search == ()
+    for name, why in (("arm_coulomb", "is searched already"), ("arm_drag", "is not a registered effect")):
+        with pytest.raises(UserError, match=why) as err:
+            _options(ns(name))
+        assert "arm_air_drag" in str(err.value) and "\n" not in str(err.value)

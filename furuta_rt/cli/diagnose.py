@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from rich.console import Console
@@ -14,6 +15,9 @@ from furuta_rt.config import SHIPPED_RIGS, RigConfig, load_rig, require_plausibl
 from furuta_rt.errors import UserError
 from furuta_rt.io.output import claim_directory, claim_outputs, directory_when_done, write_text
 from furuta_rt.recording import Recording
+
+if TYPE_CHECKING:
+    from furuta_rt.diagnose import Options
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,6 +48,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--theta-filter", metavar="none|RAD_S", default=None,
                    help="the θ channel's Bessel cutoff instead of the config's; 'none' for an encoder on the pendulum")
     p.add_argument("--no-closed-loop", action="store_true", help="skip the closed-loop re-simulation (faster)")
+    p.add_argument("--also-search", metavar="EFFECT", action="append", default=[],
+                   help="try a registered effect that is outside the default search too (e.g. arm_air_drag); repeatable")
     add_force_argument(p, "--json file and the earlier report in --report's directory")
     p.set_defaults(func=run)
 
@@ -143,7 +149,6 @@ def with_theta_filter(rig: RigConfig, text: str) -> RigConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    from furuta_rt.diagnose import Options
     from furuta_rt.diagnose.report.render import OUTPUTS, check_directory, text, write_report
     from furuta_rt.diagnose.segments import SegmentedDiagnosis, diagnose_recording, split_at_gaps
 
@@ -167,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
     if args.report and len(split.segments) > 1:
         raise UserError(f"--report writes the page of one continuous recording; {args.recording} splits into "
                         f"{len(split.segments)} segments at its gaps: use --json")
-    opts = Options(closed_loop=not args.no_closed_loop, check_conventions=not args.skip_convention_check)
+    opts = _options(args)
     d = diagnose_recording(rec, rig, opts, split)
     if isinstance(d, SegmentedDiagnosis):
         _print_and_write(args, d.to_json(), d.text())
@@ -186,7 +191,6 @@ def run(args: argparse.Namespace) -> int:
 
 def run_joint(args: argparse.Namespace) -> int:
     """Several recordings of one rig fitted jointly (furuta_rt.diagnose.joint)."""
-    from furuta_rt.diagnose import Options
     from furuta_rt.diagnose.joint import diagnose_joint, text
 
     if args.report:
@@ -210,7 +214,7 @@ def run_joint(args: argparse.Namespace) -> int:
                                 f"{rig.name}); give --config to diagnose both against one rig")
     if args.theta_filter is not None:
         rig = with_theta_filter(rig, args.theta_filter)
-    opts = Options(closed_loop=not args.no_closed_loop, check_conventions=not args.skip_convention_check)
+    opts = _options(args)
     j = diagnose_joint([(path, rec) for path, (rec, _) in zip(args.recording, loaded, strict=True)], rig, opts)
     _print_and_write(args, j.to_json(), text(j))
     return 0
@@ -229,3 +233,19 @@ def _print_and_write(args: argparse.Namespace, out: dict, lines: list[str]) -> N
             write_text(args.json, json.dumps(out, indent=1, default=float) + "\n", overwrite=args.force, flag="--json")
         except OSError as err:
             raise UserError(f"cannot write {args.json}: {err.strerror}") from None
+
+
+def _options(args: argparse.Namespace) -> Options:
+    """diagnose's Options from the command line; an --also-search name that is no effect outside the default search is
+    refused in one line."""
+    from furuta_rt.diagnose import Options
+    from furuta_rt.model.effects import EFFECT_TYPES
+
+    optional = sorted(name for name, cls in EFFECT_TYPES.items() if not cls.searched)
+    for name in args.also_search:
+        if name not in optional:
+            why = "is searched already" if name in EFFECT_TYPES else "is not a registered effect"
+            raise UserError(f"--also-search {name}: {why}; the effects outside the default search are "
+                            f"{', '.join(optional) or 'none'}")
+    return Options(closed_loop=not args.no_closed_loop, check_conventions=not args.skip_convention_check,
+                   also_search=tuple(args.also_search))

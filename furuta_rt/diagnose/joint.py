@@ -70,8 +70,8 @@ class JointPrep:
 class JointContext:
     """The members' Contexts as one: per-row arrays concatenated, the rig's constants from the first (one rig)."""
 
-    SHARED = ("rig", "model", "plant", "known", "known_value", "known_gain", "base_path", "base_inertia", "back_emf",
-              "lugre_params")
+    SHARED = ("rig", "model", "plant", "also_search", "known", "known_value", "known_gain", "base_path", "base_inertia",
+              "back_emf", "lugre_params")
 
     def __init__(self, parts: list[Context]) -> None:
         self.parts = parts
@@ -201,7 +201,8 @@ def context(rec: Recording, rig: RigConfig, opts: Options, notes: list[str]) -> 
     """A recording's Context as diagnose builds it (its longest balancing stretch, its own arm kernel)."""
     rec = balancing_span(rec, notes)
     prep = prepare(rec, rig)
-    return Context.build(prep, rig, opts.sigma_arm or arm_sigma(prep), opts.sigma_pend, opts.sigma_fine)
+    return Context.build(prep, rig, opts.sigma_arm or arm_sigma(prep), opts.sigma_pend, opts.sigma_fine,
+                         frozenset(opts.also_search))
 
 
 def needed_factor(entry: dict, opts: Options) -> float:

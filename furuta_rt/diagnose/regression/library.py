@@ -72,17 +72,19 @@ class Context:
     arm: States
     pend: States
     fine: States
+    also_search: frozenset[str] = frozenset()  # registered effects outside the default search to try as well
     _held: dict[InputPath, np.ndarray] = field(default_factory=dict)
     _tau0: dict[tuple[float, float | None], np.ndarray] = field(default_factory=dict)
     _columns: dict[str, np.ndarray] = field(default_factory=dict)
 
     @classmethod
-    def build(cls, prep: Prepared, rig: RigConfig, sigma_arm: float, sigma_pend: float, sigma_fine: float) -> Context:
+    def build(cls, prep: Prepared, rig: RigConfig, sigma_arm: float, sigma_pend: float, sigma_fine: float,
+              also_search: frozenset[str] = frozenset()) -> Context:
         model = RigModel.from_config(rig)  # the rig with its own [effects]: the nominal model includes them
         fine = prep.states(sigma_fine)
         return cls(
             prep=prep, rig=rig, plant=model.plant, model=model,
-            arm=prep.states(sigma_arm, fine), pend=prep.states(sigma_pend, fine), fine=fine,
+            arm=prep.states(sigma_arm, fine), pend=prep.states(sigma_pend, fine), fine=fine, also_search=also_search,
         )
 
     def states(self, equation: str) -> States:
@@ -396,6 +398,11 @@ class Candidate:
     @property
     def equation(self) -> str:
         return self.effect.equation
+
+    @property
+    def searched(self) -> bool:
+        """Tried on every recording (the registry's ``searched``), or only when asked."""
+        return bool(self.effect.searched)
 
     @property
     def main(self) -> str:

@@ -116,6 +116,7 @@ class EquationModel:
         return [
             c for c in CANDIDATES.values()
             if c.equation == self.equation and (commanded or not c.name.startswith("input_"))
+            and (c.searched or c.name in self.ctx.also_search)
         ]
 
     def target(self, spec: Spec) -> np.ndarray:

@@ -29,6 +29,7 @@ class Options:
     ambiguity_gain: float = 0.01  # ... when one also fits better by at least this (relative held-out error)
     seed: int = 0
     check_conventions: bool = True  # refuse a recording whose signs or angle units are clearly not the rig's
+    also_search: tuple[str, ...] = ()  # registered effects outside the default search to try too (e.g. arm_air_drag)
 
 
 @dataclass

@@ -244,7 +244,7 @@ def band_context(ctx: Context, factor: float = BAND_FACTOR) -> Context:
     def outer(eq: str) -> float:
         s = ctx.states(eq)
         return (s.outer or s.filt).sigma * factor
-    return Context.build(ctx.prep, ctx.rig, outer("arm"), outer("pendulum"), ctx.fine.filt.sigma)
+    return Context.build(ctx.prep, ctx.rig, outer("arm"), outer("pendulum"), ctx.fine.filt.sigma, ctx.also_search)
 
 
 def band_check(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResult], names: list[tuple[str, str]],

@@ -22,7 +22,8 @@ def start(rec: Recording, rig: RigConfig, opts: Options) -> State:
     rec = balancing_span(rec, notes)
     prep = prepare(rec, rig)
     notes += prep.notes + (conventions.conventions(prep, rig) if opts.check_conventions else [])
-    ctx = Context.build(prep, rig, opts.sigma_arm or arm_sigma(prep), opts.sigma_pend, opts.sigma_fine)
+    ctx = Context.build(prep, rig, opts.sigma_arm or arm_sigma(prep), opts.sigma_pend, opts.sigma_fine,
+                        frozenset(opts.also_search))
     if noise.sensor_noise(ctx).note:
         notes.append(noise.sensor_noise(ctx).note)
     return State(rec=rec, rig=rig, opts=opts, ctx=ctx, notes=tuple(notes))
