@@ -67,11 +67,13 @@ def test_daemon_log_is_on_one_clock_that_agrees_with_the_device(tmp_path: Path) 
     assert abs(np.median(diff)) < PERIOD_NS / 4, f"log time − device wall time: median {np.median(diff) / 1e3:.0f} µs"
     # events (host wall clock) sit on the same time line as the ticks they report: a transition carries its
     # SAMPLE's arrival, the tick its device time + the least delay; the two differ by that SAMPLE's extra delay
-    # (a loaded 2-core machine delays a read by up to ~2.5 ms at start-up) or a little the other way (a later
+    # (the first reads at start-up come late) or a little the other way (a later
     # SAMPLE may come quicker than the least of the first 0.25 s)
     armed = next(m for m in by_topic[ls.EVENTS_TOPIC] if "→ armed" in (m[6] or ""))
     seq = int(armed[6].rsplit("seq ", 1)[1].rstrip(")"))
-    assert -PERIOD_NS / 4 <= armed[1] - tick_time[seq] < 2 * PERIOD_NS, (armed[1] - tick_time[seq]) / 1e3
+    # (the arming SAMPLE is one of the first: measured 2.2-3.6 ms late on a quiet machine, 5.7 ms under CI's load, as
+    # the start-up's first reads come in a burst; another clock, or the event's own emission time, is off by far more)
+    assert -PERIOD_NS / 4 <= armed[1] - tick_time[seq] < 10 * PERIOD_NS, (armed[1] - tick_time[seq]) / 1e3
     # the packed tick batch (decoded by @mcap/core's side from the log's own schema record) holds the same ticks at
     # the same times, and each batch message is stamped with its first tick's time
     batched = [m for m in msgs if m[0] == ls.TICK_BATCH_TOPIC]
