@@ -302,6 +302,14 @@ def _logger_pid(daemon: DaemonProcess, *, starting: bool) -> int | None:
     return spawned[-1] if len(spawned) >= (2 if starting else 1) else None
 
 
+def _starting_logger(daemon: DaemonProcess) -> int | None:
+    """Wait (up to TIMEOUT_S, while the daemon lives) until its logger starts beside the design helper: its pid."""
+    end = time.monotonic() + TIMEOUT_S
+    while (logger := _logger_pid(daemon, starting=True)) is None and daemon.proc.poll() is None and time.monotonic() < end:
+        time.sleep(0.001)
+    return logger
+
+
 def test_the_loser_of_a_race_for_the_live_view_port_says_so_and_advertises_nothing(tmp_path: Path) -> None:
     """The port is free when the run checks it, and taken (here by a listener standing for another run) before the
     run's logger binds it: the run must not print "live view on ws://…" (that is the other program's view) — one
@@ -313,9 +321,7 @@ def test_the_loser_of_a_race_for_the_live_view_port_says_so_and_advertises_nothi
     daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "5", "--log", str(log), f"--foxglove={port}"])
     winner = socket.socket()
     try:
-        end = time.monotonic() + TIMEOUT_S
-        while (logger := _logger_pid(daemon, starting=True)) is None and daemon.proc.poll() is None and time.monotonic() < end:
-            time.sleep(0.001)
+        logger = _starting_logger(daemon)
         assert logger is not None, daemon.stderr
         os.kill(logger, signal.SIGSTOP)  # past the run's port check, before its live view binds (seconds of imports)
         winner.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -373,9 +379,7 @@ def test_a_logger_killed_during_start_up_is_one_line_at_once(tmp_path: Path) -> 
     60 s start-up timeout, no device streaming."""
     daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "5", "--log", str(tmp_path / "run.mcap")])
     try:
-        end = time.monotonic() + TIMEOUT_S
-        while (logger := _logger_pid(daemon, starting=True)) is None and daemon.proc.poll() is None and time.monotonic() < end:
-            time.sleep(0.001)
+        logger = _starting_logger(daemon)
         assert logger is not None, daemon.stderr
         os.kill(logger, signal.SIGKILL)
         t_kill = time.monotonic()
@@ -396,9 +400,7 @@ def test_the_controller_design_helper_killed_during_start_up_is_one_line(tmp_pat
     real-time process): its death is one line naming it, exit 2, no device streaming, not a hang."""
     daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "5", "--log", str(tmp_path / "run.mcap")])
     try:
-        end = time.monotonic() + TIMEOUT_S
-        while _logger_pid(daemon, starting=True) is None and daemon.proc.poll() is None and time.monotonic() < end:
-            time.sleep(0.001)
+        _starting_logger(daemon)
         os.kill(_spawned(daemon)[0], signal.SIGKILL)
         rc = daemon.wait(timeout=TIMEOUT_S)
     finally:
