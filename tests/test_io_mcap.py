@@ -265,3 +265,57 @@ def test_tick_batch_with_a_torn_record_or_an_unknown_layout(tmp_path: Path, rig:
     log = read_log(other)
     assert log.ticks["seq"].tolist() == [0, 1]  # from /furuta/tick
     assert any("record layout this version does not know" in w for w in log.warnings)
+
+
+def _write_ticks(path: Path, rig: RigConfig, n: int, flush_every: int, keep_in_memory: bool = False,
+                 during: object = None) -> None:
+    from furuta_rt.io.mcap_log import LogWriter, run_metadata
+
+    fields = {k: 0 for k in ls.TICK_FIELDS} | {"t": 0.0, "saturated": False, "reset": False, "state": "balancing",
+                                               "mode": "none"}
+    with LogWriter(path, rig, run_metadata("none", [1, 2, 3, 4], 1000)) as w:
+        if keep_in_memory:  # the mcap writer as it comes: its chunk indexes in a list
+            w._writer._Writer__chunk_indices = []  # type: ignore[attr-defined]
+        for k in range(n):
+            w.tick(k * 1_000_000, fields | {"seq": k, "t": k * 1e-3, "u": 0.001 * (k % 7)})
+            if (k + 1) % flush_every == 0:
+                w.flush()
+                if callable(during):
+                    during(k)
+
+
+def test_chunk_indexes_spilled_to_disk_give_the_same_file(tmp_path: Path, rig: RigConfig) -> None:
+    """The log writer keeps the summary's chunk index on disk until close: the file is byte for byte what the mcap
+    writer makes with its in-memory list, and the official reader finds every chunk through the summary."""
+    spilled, listed = tmp_path / "spilled.mcap", tmp_path / "listed.mcap"
+    _write_ticks(spilled, rig, 3000, 50)
+    _write_ticks(listed, rig, 3000, 50, keep_in_memory=True)
+    assert spilled.read_bytes() == listed.read_bytes()
+    with spilled.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None
+    assert len(summary.chunk_indexes) == summary.statistics.chunk_count >= 120  # 60 flushes, a batch and JSON each
+    assert read_log(spilled).ticks["seq"].tolist() == list(range(3000))
+
+
+def test_log_writer_memory_does_not_grow_with_the_chunks(tmp_path: Path, rig: RigConfig) -> None:
+    """Python heap held by a LogWriter after 300 more flushes (≥ 600 more chunks): the spilled chunk index adds no
+    memory per chunk; the in-memory list (the control case) adds hundreds of bytes per chunk."""
+    import tracemalloc
+
+    def growth(keep_in_memory: bool) -> float:
+        held: dict[int, int] = {}
+
+        def note(k: int) -> None:
+            if (k + 1) // 10 in (100, 400):
+                held[(k + 1) // 10] = tracemalloc.get_traced_memory()[0]
+
+        tracemalloc.start()
+        try:
+            _write_ticks(tmp_path / f"m{keep_in_memory}.mcap", rig, 4000, 10, keep_in_memory, during=note)
+        finally:
+            tracemalloc.stop()
+        return (held[400] - held[100]) / 600  # bytes per chunk (two chunks a flush)
+
+    assert growth(keep_in_memory=True) > 200
+    assert growth(keep_in_memory=False) < 20

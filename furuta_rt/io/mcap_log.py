@@ -12,11 +12,14 @@ from __future__ import annotations
 import importlib.metadata
 import json
 import os
-from collections.abc import Callable, Mapping
+import tempfile
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from mcap.data_stream import RecordBuilder
+from mcap.records import ChunkIndex
 from mcap.writer import CompressionType, Writer
 
 from furuta_rt.config import CompMode, RigConfig
@@ -70,6 +73,60 @@ def _ns(seconds: float) -> int:
     return max(0, round(seconds * 1e9))
 
 
+class _EncodedRecords:
+    """Records already encoded: ``write`` puts their bytes into the writer's summary as they are."""
+
+    __slots__ = ("data",)
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+    def write(self, builder: RecordBuilder) -> None:
+        builder.write(self.data)
+
+
+class SpilledChunkIndexes:
+    """The MCAP writer's list of ChunkIndex records, each encoded as it comes and kept in an anonymous temporary
+    file until ``Writer.finish`` writes them into the summary. Held as objects they grow with the run (a chunk
+    index with its per-channel offsets is about half a kilobyte; a 1 kHz log ends about a dozen chunks a second);
+    spilled, the logger's memory stays flat and the file is byte for byte the same."""
+
+    def __init__(self) -> None:
+        self._file = tempfile.TemporaryFile(prefix="furuta-rt-chunk-index-")  # noqa: SIM115 (closed by close())
+        self._count = 0
+
+    def append(self, index: ChunkIndex) -> None:
+        builder = RecordBuilder()
+        index.write(builder)
+        self._file.write(builder.end())
+        self._count += 1
+
+    def __len__(self) -> int:
+        return self._count
+
+    def __iter__(self) -> Iterator[_EncodedRecords]:
+        """All the records as one item (the writer writes them one after another into the summary)."""
+        if self._count:
+            self._file.seek(0)
+            data = self._file.read()
+            self._file.seek(0, os.SEEK_END)
+            yield _EncodedRecords(data)
+
+    def close(self) -> None:
+        self._file.close()
+
+
+def spill_chunk_indexes(writer: Writer) -> SpilledChunkIndexes | None:
+    """Make ``writer`` keep its chunk indexes in a SpilledChunkIndexes (None where this mcap version keeps them
+    under another name: the writer then keeps them in memory, as it does by default)."""
+    name = "_Writer__chunk_indices"
+    if not isinstance(getattr(writer, name, None), list) or getattr(writer, name):
+        return None
+    spill = SpilledChunkIndexes()
+    setattr(writer, name, spill)
+    return spill
+
+
 class LogNotInPlace(UserError):
     """The file a run writes is no longer at its path (deleted or replaced by someone else)."""
 
@@ -93,6 +150,7 @@ class LogWriter:
         st = os.fstat(self._fh.fileno())
         self._identity = (st.st_dev, st.st_ino)
         w = Writer(self._fh, chunk_size=chunk_size, compression=compression)
+        self._spill = spill_chunk_indexes(w)  # the summary's chunk index on disk until close: memory stays flat
         w.start(profile=PROFILE, library=f"furuta_rt {package_version()}")
         w.add_metadata(ls.RIG_METADATA, rig_metadata(rig))
         w.add_metadata(ls.RUN_METADATA, dict(run))
@@ -184,7 +242,11 @@ class LogWriter:
         if not self._closed:
             self._closed = True
             self._write_batch()
-            self._writer.finish()
+            try:
+                self._writer.finish()
+            finally:
+                if self._spill is not None:
+                    self._spill.close()
             self._fh.flush()
             gone = self.not_in_place()
             self._fh.close()
