@@ -151,10 +151,11 @@ def encode(msg: Message) -> bytes:
 _COMMAND_STRUCT = SPECS[MsgType.COMMAND].struct
 
 
-def encode_command(seq: int, value_counts: int, flags: int) -> bytes:
-    """Fast path for the per-tick COMMAND frame (no dataclass). ``seq`` wraps modulo 2**32."""
+def encode_command(session: int, seq: int, value_counts: int, flags: int) -> bytes:
+    """Fast path for the per-tick COMMAND frame (no dataclass): ``session`` is the nonce of the HELLO that started
+    the session, ``seq`` the SAMPLE answered (wraps modulo 2**32)."""
     try:
-        inner = _COMMAND_STRUCT.pack(MsgType.COMMAND, seq & 0xFFFFFFFF, value_counts, flags)
+        inner = _COMMAND_STRUCT.pack(MsgType.COMMAND, session, seq & 0xFFFFFFFF, value_counts, flags)
     except struct.error as exc:
         raise EncodeError(f"Command: {exc}") from None
     return _frame(inner)

@@ -27,7 +27,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .framing import FrameStatus, cobs_encode, crc16, encode, try_decode_frame
+from .framing import MAX_FRAME_LEN, FrameStatus, cobs_encode, crc16, encode, try_decode_frame
 from .messages import (
     MESSAGE_CLASSES,
     PROTOCOL_VERSION,
@@ -40,6 +40,7 @@ from .messages import (
     Hello,
     HelloAck,
     Message,
+    ResetCause,
     Sample,
     Status,
     StatusFlags,
@@ -110,11 +111,12 @@ def messages() -> list[tuple[str, Message]]:
                 phi_counts_per_rev=4096,
                 actuator_full_scale=f32(0.25),
                 actuator_kind=ActuatorKind.TORQUE_NM,
+                reset_cause=ResetCause.WATCHDOG,
             ),
         ),
         ("config_default", Config(rate_hz=1000, watchdog_ms=20)),
-        ("command_enable", Command(seq=41, command=-16384, flags=CommandFlags.ENABLE)),
-        ("command_clear_fault", Command(seq=0xFFFFFFFF, command=0, flags=CommandFlags.CLEAR_FAULT)),
+        ("command_enable", Command(session=0x12345678, seq=41, command=-16384, flags=CommandFlags.ENABLE)),
+        ("command_clear_fault", Command(session=0x9ABCDEF0, seq=0xFFFFFFFF, command=0, flags=CommandFlags.CLEAR_FAULT)),
         ("stop", Stop(reason=0)),
         (
             "sample_typical",
@@ -138,6 +140,8 @@ def messages() -> list[tuple[str, Message]]:
                 frame_errors=1,
                 frames_rx=123_456,
                 last_cmd_seq=123_400,
+                uart_overruns=2,
+                uart_line_errors=5,
             ),
         ),
     ]
@@ -194,7 +198,7 @@ def _invalid_entries(frames: list[dict[str, Any]]) -> list[dict[str, Any]]:
         ("crc_valid_wrong_length", with_crc(inner[:-3])),
         ("crc_valid_unknown_type", with_crc(b"\x7f" + inner[1:-2])),
         ("crc_little_endian", cobs_encode(inner[:-2] + inner[-2:][::-1])),
-        ("overlong", b"\x2e" + b"\x11" * 45),
+        ("overlong", bytes([MAX_FRAME_LEN + 1]) + b"\x11" * MAX_FRAME_LEN),
     ]
     out = []
     for name, frame in cases:

@@ -17,7 +17,7 @@ from enum import IntEnum, IntFlag
 from operator import attrgetter
 from typing import Any, ClassVar
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 """Bumped on any incompatible change of framing or semantics."""
 
 COMMAND_FULL_SCALE = 32767
@@ -63,6 +63,17 @@ class CommandFlags(IntFlag):
     CLEAR_FAULT = 1 << 1  # clear latched faults; output is zero on the tick that applies it
 
 
+class ResetCause(IntEnum):
+    """HelloAck.reset_cause (u8): what started the firmware that answers, read from the MCU's reset flags."""
+
+    UNKNOWN = 0  # no flag the firmware knows (or the target cannot tell)
+    POWER_ON = 1  # power-on or brown-out of the supply
+    PIN = 2  # the reset pin (the board's button, a debugger)
+    WATCHDOG = 3  # the hardware watchdog: the firmware hung (or stopped refreshing it)
+    SOFTWARE = 4  # the firmware asked for it (SYSRESETREQ)
+    FAULT = 5  # the firmware's fault handler took the drive off and let the watchdog reset it
+
+
 class ActuatorKind(IntEnum):
     """Physical unit of HelloAck.actuator_full_scale."""
 
@@ -72,7 +83,7 @@ class ActuatorKind(IntEnum):
 
 @dataclass(frozen=True, slots=True)
 class Hello:
-    """Host → device: start of the handshake."""
+    """Host → device: start of the handshake. ``nonce`` names the session: every COMMAND of it carries it."""
 
     protocol_version: int
     schema_hash: int
@@ -84,7 +95,7 @@ class Hello:
 
 @dataclass(frozen=True, slots=True)
 class HelloAck:
-    """Device → host: identity, rate and channel scaling. Echoes the HELLO nonce.
+    """Device → host: identity, rate, channel scaling and why it last reset. Echoes the HELLO nonce.
 
     The float fields travel as IEEE binary32: a decoded value is the f32 rounding of what was sent.
     """
@@ -105,9 +116,10 @@ class HelloAck:
     phi_counts_per_rev: int
     actuator_full_scale: float
     actuator_kind: int
+    reset_cause: int
 
     TYPE: ClassVar[MsgType] = MsgType.HELLO_ACK
-    FORMAT: ClassVar[str] = "BIIIBBBHHfhfhIfB"
+    FORMAT: ClassVar[str] = "BIIIBBBHHfhfhIfBB"
 
 
 @dataclass(frozen=True, slots=True)
@@ -123,14 +135,16 @@ class Config:
 
 @dataclass(frozen=True, slots=True)
 class Command:
-    """Host → device: actuator command answering SAMPLE ``seq``; applied at the next tick."""
+    """Host → device: actuator command answering SAMPLE ``seq`` of the session ``session`` (its HELLO's nonce);
+    applied at the next tick. A COMMAND of another session is discarded (PROTOCOL.md §6)."""
 
+    session: int
     seq: int
     command: int
     flags: int
 
     TYPE: ClassVar[MsgType] = MsgType.COMMAND
-    FORMAT: ClassVar[str] = "IhB"
+    FORMAT: ClassVar[str] = "IIhB"
 
 
 @dataclass(frozen=True, slots=True)
@@ -160,7 +174,7 @@ class Sample:
 
 @dataclass(frozen=True, slots=True)
 class Status:
-    """Device → host: faults, applied configuration and link counters."""
+    """Device → host: faults, applied configuration and link counters (all counted since the HELLO)."""
 
     flags: int
     rate_hz: int
@@ -169,9 +183,11 @@ class Status:
     frame_errors: int
     frames_rx: int
     last_cmd_seq: int
+    uart_overruns: int
+    uart_line_errors: int
 
     TYPE: ClassVar[MsgType] = MsgType.STATUS
-    FORMAT: ClassVar[str] = "HHHIIII"
+    FORMAT: ClassVar[str] = "HHHIIIIII"
 
 
 Message = Hello | HelloAck | Config | Command | Stop | Sample | Status
@@ -220,7 +236,7 @@ def schema_text(classes: tuple[type[Message], ...] = MESSAGE_CLASSES) -> str:
     for cls in sorted(classes, key=lambda c: int(c.TYPE)):
         names = ",".join(f"{f.name}:{code}" for f, code in zip(fields(cls), cls.FORMAT, strict=True))
         lines.append(f"msg {int(cls.TYPE):#04x} {cls.TYPE.name} <{cls.FORMAT} {names}")
-    for enum in (StatusFlags, CommandFlags, ActuatorKind):
+    for enum in (StatusFlags, CommandFlags, ActuatorKind, ResetCause):
         members = ",".join(f"{m.name}={int(m.value)}" for m in enum)
         lines.append(f"enum {enum.__name__} {members}")
     lines.append("frame cobs+crc16-ccitt-false-be")

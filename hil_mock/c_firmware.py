@@ -13,7 +13,7 @@ from __future__ import annotations
 import ctypes
 import functools
 
-from firmware_protocol import HelloAck, Status, counts_to_actuator
+from firmware_protocol import HelloAck, ResetCause, Status, counts_to_actuator
 from firmware_protocol.hostbuild import host_library
 from furuta_rt.config import RigConfig
 from furuta_rt.model.rig import RigModel
@@ -27,11 +27,11 @@ STATE_FIELDS = (
     "clock_ns", "period_ns", "rate_hz", "watchdog_ms", "streaming", "enabled", "answered", "any_applied",
     "output_counts", "faults", "status_flags", "new_sessions", "tx_frames", "commands_rx", "commands_applied",
     "commands_discarded", "watchdog_trips", "handshakes", "handshakes_refused", "samples_sent", "status_sent",
-    "hangups", "reboots", "frames_ok", "crc_errors", "errors", "seq", "last_cmd_seq",
+    "hangups", "reboots", "frames_ok", "crc_errors", "errors", "seq", "last_cmd_seq", "commands_other_session",
 )  # host_hal.c host_state()
 _COUNTERS = ("commands_rx", "commands_applied", "commands_discarded", "watchdog_trips", "handshakes",
              "handshakes_refused", "samples_sent", "status_sent", "hangups", "reboots", "rate_hz", "watchdog_ms",
-             "period_ns", "clock_ns", "faults", "seq", "last_cmd_seq")
+             "period_ns", "clock_ns", "faults", "seq", "last_cmd_seq", "commands_other_session")
 _COUNTER_INDEX = tuple((name, STATE_FIELDS.index(name)) for name in _COUNTERS)
 (_TX_FRAMES, _STREAMING, _ENABLED, _ANSWERED, _ANY_APPLIED, _STATUS_FLAGS, _CRC_ERRORS, _ERRORS, _FRAMES_OK,
  _NEW_SESSIONS, _OUTPUT_COUNTS) = (STATE_FIELDS.index(name) for name in (
@@ -76,7 +76,8 @@ def load_library() -> ctypes.CDLL:
         ("host_rx", (dev, ctypes.c_char_p, ctypes.c_size_t), None),
         ("host_tick", (dev, i16, i16, i32, u8), None),
         ("host_skip", (dev, u32), None),
-        ("host_reboot", (dev,), None),
+        ("host_reboot", (dev, u8), None),
+        ("host_uart_errors", (dev, u32, u32), None),
         ("host_hangup", (dev,), None),
         ("host_note_tx_overflow", (dev,), None),
         ("host_take_tx", (dev, ctypes.c_char_p, ctypes.POINTER(u16)), u32),
@@ -200,10 +201,15 @@ class CFirmware(Firmware):
             self._sync()
             self.advance_plant()
 
-    def reboot(self) -> None:
+    def reboot(self, cause: ResetCause = ResetCause.PIN) -> None:
         self.tx.clear()
-        self._lib.host_reboot(self._dev)
+        self.reset_cause = cause
+        self._lib.host_reboot(self._dev, int(cause))
         self._sync()
+
+    def set_uart_errors(self, overruns: int, line_errors: int) -> None:
+        self.uart_overruns, self.uart_line_errors = overruns, line_errors
+        self._lib.host_uart_errors(self._dev, overruns & 0xFFFFFFFF, line_errors & 0xFFFFFFFF)
 
     def hangup(self) -> None:
         self._lib.host_hangup(self._dev)

@@ -26,7 +26,10 @@ The rules are those of firmware_protocol/PROTOCOL.md §5–7. Where the spec lea
 * "Arrival" of a COMMAND (watchdog) is quantised to the tick that reads it. The watchdog trips at
   the first tick at least ``watchdog_ms`` after the last accepted COMMAND (or the HELLO).
 * The HELLO_ACK is preceded by one 0x00 (§2.1: flush the peer's partial frame).
-* STATUS counters (crc_errors, frame_errors, frames_rx) count from the last accepted HELLO.
+* STATUS counters (crc_errors, frame_errors, frames_rx, uart_overruns, uart_line_errors) count from the last
+  accepted HELLO. The pseudo-terminal has no UART: its error counts are what ``set_uart_errors`` says (0 unless a
+  test or fault sets them), and a reset starts them from 0.
+* ``reboot(cause)`` is a reset for ``cause`` (the reset pin by default), which the next HELLO_ACK reports.
 * CONFIG accepts 1 ≤ rate_hz ≤ min(10 000, physics substep rate) and watchdog_ms ≥ 1.
 """
 
@@ -45,6 +48,7 @@ from firmware_protocol import (
     Config,
     Hello,
     HelloAck,
+    ResetCause,
     Sample,
     Status,
     StatusFlags,
@@ -125,6 +129,10 @@ class Firmware:
         self.commands_rx = 0
         self.commands_applied = 0
         self.commands_discarded = 0
+        self.commands_other_session = 0
+        self.reset_cause = ResetCause.POWER_ON
+        self.uart_overruns = 0  # the receiver's error counts since the last reset (set_uart_errors)
+        self.uart_line_errors = 0
         self.watchdog_trips = 0
         self.handshakes = 0
         self.handshakes_refused = 0
@@ -153,6 +161,8 @@ class Firmware:
         self.seq = 0  # seq of the next SAMPLE (unbounded; sent modulo 2**32)
         self._rx_errors_seen = self.decoder.errors
         self._base = (0, 0, 0)  # decoder (crc, other errors, frames ok) at the last HELLO
+        self._uart_base = (self.uart_overruns, self.uart_line_errors)
+        self.session = 0  # the nonce of the HELLO that started the session (meaningful while streaming)
         self._last_cmd_ns = 0
         self._next_status_ns = 0
         self._go_idle()
@@ -172,12 +182,18 @@ class Firmware:
             self.output = u
             self.sim.set_command(u)
 
-    def reboot(self) -> None:
-        """Device reset: power-up state, idle until a HELLO, SAMPLE seq from 0. The plant runs on."""
+    def reboot(self, cause: ResetCause = ResetCause.PIN) -> None:
+        """Device reset for ``cause``: power-up state, idle until a HELLO, SAMPLE seq from 0. The plant runs on."""
         self.decoder.reset()
         self.tx.clear()
         self.reboots += 1
+        self.reset_cause = cause
+        self.uart_overruns = self.uart_line_errors = 0
         self._boot()
+
+    def set_uart_errors(self, overruns: int, line_errors: int) -> None:
+        """The receiver's error counts since the last reset, as a UART counts them (free-running, mod 2³²)."""
+        self.uart_overruns, self.uart_line_errors = overruns, line_errors
 
     def hangup(self) -> None:
         """The host closed the port (DTR drop): output zero, idle. Latched faults are kept."""
@@ -225,6 +241,10 @@ class Firmware:
     def _on_command(self, msg: Command) -> None:
         """§6: accepted iff not newer than the last SAMPLE sent and newer than the last applied/accepted."""
         self.commands_rx += 1
+        if self.streaming and msg.session != self.session:  # another session's (delayed, a second host's)
+            self.commands_discarded += 1
+            self.commands_other_session += 1
+            return
         last_sent = (self.seq - 1) & _MASK32 if self.seq else None
         ref = self._new[0] if self._new is not None else self._last_applied
         if not self.streaming or not command_accepted(msg.seq, last_sent, ref):
@@ -252,6 +272,7 @@ class Firmware:
             self.replacements += 1
         self._go_idle()  # restart the session: output zero, faults kept
         self.streaming = True
+        self.session = msg.nonce  # from now on a COMMAND of an earlier session is discarded
         self.seq = 0
         self.sticky = 0
         self._last_cmd_ns = self.clock_ns  # watchdog armed by the handshake (§5)
@@ -259,6 +280,7 @@ class Firmware:
         d = self.decoder
         self._base = (d.crc_errors, d.errors - d.crc_errors, d.frames_ok - later_frames)
         self._rx_errors_seen = d.errors
+        self._uart_base = (self.uart_overruns, self.uart_line_errors)
 
     def hello_ack(self, nonce: int) -> HelloAck:
         """The device's identity: always its own version and schema hash, whatever the HELLO carried."""
@@ -280,6 +302,7 @@ class Firmware:
             phi_counts_per_rev=cal.phi_counts_per_rev,
             actuator_full_scale=self.full_scale,
             actuator_kind=int(self.actuator_kind),
+            reset_cause=int(self.reset_cause),
         )
 
     def _on_config(self, msg: Config) -> None:
@@ -308,6 +331,8 @@ class Firmware:
             frame_errors=(d.errors - d.crc_errors - other0) & _MASK32,
             frames_rx=(d.frames_ok - ok0) & _MASK32,
             last_cmd_seq=self.last_cmd_seq & _MASK32,
+            uart_overruns=(self.uart_overruns - self._uart_base[0]) & _MASK32,
+            uart_line_errors=(self.uart_line_errors - self._uart_base[1]) & _MASK32,
         )
 
     def _send_status(self) -> None:

@@ -51,7 +51,7 @@ class MiniHost:
     def command(self, seq: int, u: float, flags: int) -> None:
         """COMMAND answering SAMPLE ``seq`` with the physical command ``u`` (N m or V)."""
         assert self.ack is not None, "handshake first"
-        self.ser.write(encode_command(seq, actuator_to_counts(u, self.ack.actuator_full_scale), flags))
+        self.ser.write(encode_command(self.ack.nonce, seq, actuator_to_counts(u, self.ack.actuator_full_scale), flags))
 
     def poll(self) -> list[Message]:
         """Messages that arrived (waits up to the port timeout for the first byte)."""

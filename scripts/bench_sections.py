@@ -83,7 +83,7 @@ def bench_tick(quick: bool) -> dict[str, Any]:
             for msg in dec.feed(frame):
                 th, thd, ph = cal.to_si(msg.theta_adc, msg.theta_dot_adc, msg.phi_count)
                 o = ctrl.update(Measurement(msg.t_us * 1e-6, th, thd, ph))
-                encode_command(msg.seq, int(o.u / 2.0 * 32767), 1)
+                encode_command(0x5E55, msg.seq, int(o.u / 2.0 * 32767), 1)
                 batch.append((msg.seq, msg.t_us, th, thd, ph, o.phi_dot_hat, o.u, o.u_lin, o.u_comp))
                 if len(batch) >= 50:
                     batch = []

@@ -25,7 +25,18 @@ import pytest
 from mcap.reader import make_reader
 from test_reliability_harness import DaemonProcess, read_summary, traceback_free
 
-from firmware_protocol import PROTOCOL_VERSION, SCHEMA_HASH, Hello, HelloAck, Sample, StatusFlags, StreamDecoder, encode
+from firmware_protocol import (
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    Config,
+    Hello,
+    HelloAck,
+    Sample,
+    Status,
+    StatusFlags,
+    StreamDecoder,
+    encode,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -122,7 +133,7 @@ def test_the_daemon_balances_through_the_flashed_image_for_10_s(image: Path, tmp
     rc = d.wait(timeout=280)
     assert traceback_free(d.stderr + d.stdout), d.stderr
     assert rc == 0, f"exit {rc}\n{d.stderr}\n{d.stdout}"
-    assert "firmware 0.2.0" in d.stdout + d.stderr
+    assert "firmware 0.3.0" in d.stdout + d.stderr
     s = read_summary(tmp_path)
     assert s["end"] == "duration" and s["ticks"] == 10 * 500 and s["balanced_s"] > 9.9
     with log.open("rb") as fh:
@@ -166,7 +177,7 @@ def test_a_direction_change_never_drives_the_old_duty_the_new_way(image: Path) -
     mcu.receive(b"\x00" + encode(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 1)))
     mcu.advance_to(mcu.next_tick_ns())  # SAMPLE 0
     for seq, counts in ((0, 16000), (1, 16000), (2, -16000)):
-        mcu.receive(encode(Command(seq, counts, int(CommandFlags.ENABLE))))
+        mcu.receive(encode(Command(1, seq, counts, int(CommandFlags.ENABLE))))
         mcu.advance_to(mcu.next_tick_ns())  # applies it
         tim1 = mcu.tim1
         assert mcu.gpioa.output(7) == (counts > 0)
@@ -304,7 +315,7 @@ def _driving(image: Path, counts: int):  # type: ignore[no-untyped-def]
     mcu, _ = _streaming(image)
     mcu.advance_to(mcu.next_tick_ns())  # SAMPLE 0
     for seq in (0, 1):
-        mcu.receive(encode(Command(seq, counts, int(CommandFlags.ENABLE))))
+        mcu.receive(encode(Command(1, seq, counts, int(CommandFlags.ENABLE))))
         mcu.advance_to(mcu.next_tick_ns())
     mcu.advance_to(mcu.clock.now_ns + 100_000)  # the duty's preload in force
     mcu.tx.clear()
@@ -473,22 +484,46 @@ def _word(mcu, symbol: str) -> int:  # type: ignore[no-untyped-def]
     return int.from_bytes(mcu.uc.mem_read(mcu.symbols[symbol], 4), "little")
 
 
-def test_the_reset_cause_is_kept_for_a_debugger(image: Path) -> None:
+def _hello_ack(mcu) -> HelloAck:  # type: ignore[no-untyped-def]
+    """The image's answer to a HELLO now."""
+    mcu.tx.clear()
+    mcu.receive(b"\x00" + encode(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 5)))
+    mcu.advance_to(mcu.next_tick_ns())
+    ack = StreamDecoder().feed(bytes(mcu.tx))[0]
+    assert isinstance(ack, HelloAck)
+    return ack
+
+
+def test_the_reset_cause_reaches_the_host(image: Path) -> None:
     """The image keeps RCC_CSR's reset flags of its start in `reset_flags` and clears them, so the next reset's are
-    its own: power-on first (POR, PIN, BOR); then, the tick's interrupt masked (a hung tick), the IWDG resets the
-    board within its 51 ms and `reset_flags` says so (IWDG, PIN) without the power-on flag."""
+    its own, and HELLO_ACK reports what they mean: power-on first (POR, PIN, BOR); then, the tick's interrupt masked
+    (a hung tick), the IWDG resets the board within its 51 ms (IWDG, PIN: WATCHDOG); a HardFault, whose handler marks
+    it in RAM start-up leaves alone and spins until the IWDG resets the board: FAULT; the reset button: PIN."""
+    from firmware_protocol import ResetCause
+    from hil_mock.board_model.peripherals import ModelError
+
     mcu, _ = _streaming(image)
     assert _word(mcu, "reset_flags") == 0x0E000000 and mcu.rcc.regs[mcu.rcc.CSR] & 0xFE000000 == 0
+    assert _hello_ack(mcu).reset_cause == ResetCause.POWER_ON
     mcu.nvic_enabled[50] = False
     t = mcu.clock.now_ns
     mcu.advance_to(t + 60_000_000)
     assert mcu.watchdog_resets == 1 and _word(mcu, "reset_flags") == 0x24000000
+    assert _hello_ack(mcu).reset_cause == ResetCause.WATCHDOG
+    with pytest.raises(ModelError, match="Default_Handler"):
+        mcu.hard_fault()
+    mcu.advance_to(mcu.clock.now_ns + 100_000_000)  # the handler spins: the IWDG resets the board
+    assert mcu.watchdog_resets == 2 and _word(mcu, "reset_flags") == 0x24000000
+    assert _hello_ack(mcu).reset_cause == ResetCause.FAULT
+    mcu.reset("pin")
+    assert _hello_ack(mcu).reset_cause == ResetCause.PIN  # the fault's mark does not outlive the report
 
 
 def test_uart_errors_are_counted_not_cleared_silently(image: Path) -> None:
     """A byte with a framing error, one with noise, and two bytes arriving before the first was read (an overrun):
     the USART interrupt counts them (`uart_line_errors` 2, `uart_overruns` 1) where it used to clear them unseen."""
     mcu, _ = _streaming(image)
+    mcu.advance_to(mcu.next_tick_ns())  # the tick takes in the HELLO: STATUS counts from here
     assert (_word(mcu, "uart_line_errors"), _word(mcu, "uart_overruns")) == (0, 0)
     for errors in (1 << 1, 1 << 2):  # FE, NF
         mcu.usart.receive(0x55, errors)
@@ -497,6 +532,33 @@ def test_uart_errors_are_counted_not_cleared_silently(image: Path) -> None:
     mcu.usart.receive(0x22)  # before the interrupt read 0x11: ORE
     mcu.deliver()
     assert (_word(mcu, "uart_line_errors"), _word(mcu, "uart_overruns")) == (2, 1)
+    mcu.tx.clear()
+    mcu.receive(b"\x00" + encode(Config(500, 20)))  # answered by a STATUS, which reports them to the host
+    mcu.advance_to(mcu.next_tick_ns())
+    status = next(m for m in StreamDecoder().feed(bytes(mcu.tx)) if isinstance(m, Status))
+    assert (status.uart_line_errors, status.uart_overruns) == (2, 1)
+
+
+def test_a_delayed_command_of_the_old_session_never_drives_the_board(image: Path) -> None:
+    """The replay case on the flashed image: session 1 drives the bridge; a new HELLO (session 2) zeroes it; session
+    1's COMMAND answering SAMPLE 0 with ENABLE, delayed past that HELLO, leaves PA8 low; session 2's own drives."""
+    from firmware_protocol import Command, CommandFlags
+    from hil_mock.board_model.device import bridge_duty
+
+    mcu = _driving(image, 16000)  # session 1 (the HELLO's nonce 1)
+    assert bridge_duty(mcu, settled=True) > 0.4
+    mcu.receive(b"\x00" + encode(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 2)))
+    mcu.advance_to(mcu.next_tick_ns())  # SAMPLE 0 of session 2, output zero
+    mcu.receive(encode(Command(1, 0, 16000, int(CommandFlags.ENABLE))))
+    for _ in range(3):
+        mcu.advance_to(mcu.next_tick_ns())
+        assert bridge_duty(mcu, settled=True) == 0.0
+    samples = [m for m in StreamDecoder().feed(bytes(mcu.tx)) if isinstance(m, Sample)]
+    assert samples[-1].seq == 3 and not samples[-1].status & StatusFlags.ENABLED
+    mcu.receive(encode(Command(2, 3, 16000, int(CommandFlags.ENABLE))))
+    mcu.advance_to(mcu.next_tick_ns())
+    mcu.advance_to(mcu.clock.now_ns + 100_000)
+    assert bridge_duty(mcu, settled=True) > 0.4
 
 
 def test_no_stale_conversion_waits_for_the_next_tick(image: Path) -> None:

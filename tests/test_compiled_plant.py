@@ -140,7 +140,8 @@ def test_hil_mock_device_defaults_to_c_firmware_and_compiled_plant_with_the_same
             assert isinstance(fw, CFirmware) and type(fw.sim) is CompiledSimulator
         else:
             assert not isinstance(fw, CFirmware) and type(fw.sim) is Simulator
-        fw.receive(encode(make_hello()))
+        hello = make_hello()
+        fw.receive(encode(hello))
         fw.tx.clear()
         dec, out = StreamDecoder(), []
         for k in range(1500):
@@ -150,7 +151,7 @@ def test_hil_mock_device_defaults_to_c_firmware_and_compiled_plant_with_the_same
                     if type(m) is Sample:
                         out.append(frame)
                         counts = round(3000 * math.sin(0.02 * k))  # ±0.09 of full scale, reversing
-                        fw.receive(encode_command(m.seq, counts, CommandFlags.ENABLE))
+                        fw.receive(encode_command(hello.nonce, m.seq, counts, CommandFlags.ENABLE))
             fw.tx.clear()
         frames[plant] = out
     assert len(frames["compiled"]) == 1500

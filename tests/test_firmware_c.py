@@ -2,8 +2,9 @@
 
 * Conformance: one scripted host session — handshake (a refused one first), device-timed sampling, a
   closed loop, stale and future COMMANDs, late answers, the watchdog and the CLEAR_FAULT rule, CONFIG
-  applied and rejected, an overrun, a TX overflow, a corrupted and chopped link, a reset, STOP, a hang-up,
-  the pendulum falling onto the ADC rail — runs against the Python device (hil_mock.firmware) and the C
+  applied and rejected, an overrun, a TX overflow, a corrupted and chopped link, UART errors, a watchdog reset,
+  the old session's delayed COMMAND after the new HELLO, STOP, a hang-up, the pendulum falling onto the ADC
+  rail — runs against the Python device (hil_mock.firmware) and the C
   device (hil_mock.c_firmware, the same C that is cross-compiled for the board). Every frame either device
   sends is compared byte for byte (HELLO_ACK's firmware version aside), with the actuator output of every
   tick and the plant's state at the end.
@@ -37,7 +38,9 @@ from firmware_protocol import (
     Config,
     Hello,
     HelloAck,
+    ResetCause,
     Sample,
+    Status,
     StatusFlags,
     Stop,
     StreamDecoder,
@@ -73,7 +76,9 @@ class ScriptedHost:
         self.dec = StreamDecoder()
         self.trace: list[object] = []
         self.samples: list[Sample] = []
+        self.statuses: list[Status] = []
         self.link: LinkFaults | None = None
+        self.nonce = 0  # the session every COMMAND names: the last HELLO's
 
     def send(self, data: bytes) -> None:
         if self.link is not None:
@@ -89,6 +94,7 @@ class ScriptedHost:
             else:
                 self.trace.append(frame)
             self.samples += [m for m in msg if type(m) is Sample]
+            self.statuses += [m for m in msg if type(m) is Status]
         self.fw.tx.clear()
 
     def tick(self, n: int = 1) -> None:
@@ -98,13 +104,14 @@ class ScriptedHost:
             self.trace.append(("output", self.fw.output, self.fw.streaming))
 
     def hello(self, schema_hash: int = SCHEMA_HASH, nonce: int = 7) -> None:
+        self.nonce = nonce
         self.send(b"\x00" + encode(Hello(PROTOCOL_VERSION, schema_hash, nonce)))  # §2.1: flush a partial frame
 
     def answer(self, flags: int = ENABLE, gain: int = -40) -> None:
         """A proportional COMMAND on θ's ADC answering the newest SAMPLE (CLEAR_FAULT when a fault shows)."""
         s = self.samples[-1]
         counts = max(-32768, min(32767, gain * s.theta_adc))
-        self.send(encode_command(s.seq, counts, flags | (CLEAR if s.status & FAULT_MASK else 0)))
+        self.send(encode_command(self.nonce, s.seq, counts, flags | (CLEAR if s.status & FAULT_MASK else 0)))
 
     def balance(self, ticks: int) -> None:
         for _ in range(ticks):
@@ -126,14 +133,14 @@ def session(fw: Firmware) -> ScriptedHost:
     for k in range(120):  # stale and future COMMANDs around every answer; late and double answers
         h.tick()
         seq = h.samples[-1].seq
-        h.send(encode_command(seq + 1, 9999, ENABLE))  # answers a SAMPLE not sent yet: discarded
+        h.send(encode_command(h.nonce, seq + 1, 9999, ENABLE))  # answers a SAMPLE not sent yet: discarded
         if k % 7:
             h.answer()
-        h.send(encode_command(seq - 2, -9999, ENABLE))  # older than the accepted one: discarded
+        h.send(encode_command(h.nonce, seq - 2, -9999, ENABLE))  # older than the accepted one: discarded
         if k % 11 == 0:
             h.tick()  # no answer to this SAMPLE: COMMAND_LATE, output held
     h.tick(15)  # 30 ms without a COMMAND: the watchdog trips and zeroes the output
-    h.send(encode_command(h.samples[-1].seq, 5000, ENABLE))  # no CLEAR_FAULT: stays zero
+    h.send(encode_command(h.nonce, h.samples[-1].seq, 5000, ENABLE))  # no CLEAR_FAULT: stays zero
     h.tick()
     h.balance(40)  # CLEAR_FAULT (output zero on that tick), then ENABLE again
     h.send(encode(Config(1000, 30)))  # applied: output zero, ENABLE needed again, seq continues
@@ -150,7 +157,7 @@ def session(fw: Firmware) -> ScriptedHost:
     for k in range(300):
         h.tick()
         s = h.samples[-1]
-        frame = encode_command(s.seq, max(-32768, min(32767, -40 * s.theta_adc)), ENABLE | CLEAR)
+        frame = encode_command(h.nonce, s.seq, max(-32768, min(32767, -40 * s.theta_adc)), ENABLE | CLEAR)
         if k % 13 == 0:  # a COMMAND split over two ticks
             h.send(frame[:5])
             h.tick()
@@ -160,10 +167,15 @@ def session(fw: Firmware) -> ScriptedHost:
         else:
             h.send(frame)
     h.link = None
+    fw.set_uart_errors(3, 5)  # the UART counted errors: the STATUS answering this CONFIG reports them
+    h.send(encode(Config(500, 20)))
     h.balance(20)
-    fw.reboot()  # device reset: idle, no SAMPLE until a new HELLO; the plant runs on
+    fw.reboot(ResetCause.WATCHDOG)  # device reset: idle, no SAMPLE until a new HELLO; the plant runs on
     h.tick(5)
-    h.hello(nonce=8)
+    h.hello(nonce=8)  # HELLO_ACK says the watchdog reset the device
+    h.tick()
+    h.send(encode_command(7, 0, 20000, ENABLE))  # the old session's COMMAND, delayed: seq 0, ENABLE, discarded
+    h.tick()
     h.balance(30)
     h.send(encode(Stop(0)))  # idle, output zero
     h.tick(5)
@@ -204,6 +216,7 @@ def test_c_and_python_devices_send_the_same_bytes(sessions: dict[tuple[str, str]
                  "handshakes_refused", "samples_sent", "status_sent", "hangups", "reboots", "replacements"):
         assert getattr(c.fw, name) == getattr(py.fw, name), name
     assert (c.fw.decoder.crc_errors, c.fw.decoder.errors) == (py.fw.decoder.crc_errors, py.fw.decoder.errors)
+    assert c.fw.commands_other_session == py.fw.commands_other_session == 1
 
 
 @pytest.mark.parametrize("sensor", SENSORS)
@@ -220,6 +233,10 @@ def test_the_session_exercises_every_rule(sessions: dict[tuple[str, str], Script
     assert fw.handshakes == 4 and fw.handshakes_refused == 1 and fw.reboots == 1 and fw.hangups == 1
     assert fw.replacements == 3 and fw.watchdog_trips == 2  # after the reset, the STOP and the hang-up
     assert fw.commands_discarded > 200 and fw.decoder.crc_errors > 0 and fw.decoder.errors > fw.decoder.crc_errors
+    acks = [m for m in host.trace if type(m) is HelloAck]
+    assert [a.reset_cause for a in acks] == [ResetCause.POWER_ON] * 2 + [ResetCause.WATCHDOG] * 3
+    uart = {(m.uart_overruns, m.uart_line_errors) for m in host.statuses}
+    assert uart == {(0, 0), (3, 5)}  # counted from the HELLO; the reset starts the UART's counts again
     fall = host.samples[-800:]
     if sensor == "saturating":  # θ reached π: the ADC rail latches ADC_OVERRANGE, which CLEAR_FAULT cannot clear
         assert fall[-1].theta_adc == 32767 and fall[-1].status & F.ADC_OVERRANGE and fw.output == 0.0
@@ -231,12 +248,39 @@ def test_the_session_exercises_every_rule(sessions: dict[tuple[str, str], Script
 
 
 @pytest.mark.parametrize("kind", ["python", "c"])
+def test_a_delayed_command_of_the_old_session_is_not_applied_after_a_new_hello(kind: str) -> None:
+    """The replay case: the old session's COMMAND answering its SAMPLE 0 with ENABLE, delayed past a new HELLO, would
+    answer the new session's SAMPLE 0 and drive the actuator. It names its session (the old HELLO's nonce): the device
+    discards it — output zero, never ENABLED, and it does not feed the watchdog — and applies the new session's own."""
+    h = ScriptedHost(new_device(kind, rate=1000))
+    h.hello(nonce=7)
+    h.tick()
+    h.send(encode_command(7, 0, 20000, ENABLE))
+    h.tick(2)
+    assert h.fw.output > 0  # session 7 drives
+    h.hello(nonce=8)  # a new session (the host restarted): output zero, seq from 0
+    h.tick()
+    assert h.samples[-1].seq == 0 and h.fw.output == 0.0
+    for _ in range(25):  # session 7's COMMANDs keep coming, each answering the newest SAMPLE: all discarded
+        h.send(encode_command(7, h.samples[-1].seq, 20000, ENABLE))
+        h.tick()
+        assert h.fw.output == 0.0 and not h.samples[-1].status & F.ENABLED
+    assert h.samples[-1].status & F.WATCHDOG_TRIPPED  # 20 ms without a COMMAND of session 8
+    assert h.fw.commands_other_session == 25
+    h.send(encode_command(8, h.samples[-1].seq, 0, CLEAR))
+    h.tick()
+    h.send(encode_command(8, h.samples[-1].seq, 20000, ENABLE))
+    h.tick()
+    assert h.fw.output > 0 and h.samples[-1].status & F.ENABLED  # session 8's own COMMAND drives
+
+
+@pytest.mark.parametrize("kind", ["python", "c"])
 def test_watchdog_zeroes_the_output_20ms_after_the_last_command(kind: str) -> None:
     h = ScriptedHost(new_device(kind, rate=1000))
     h.hello()
     h.tick()
     for _ in range(5):
-        h.send(encode_command(h.samples[-1].seq, 3000, ENABLE))
+        h.send(encode_command(h.nonce, h.samples[-1].seq, 3000, ENABLE))
         h.tick()
     assert h.fw.output > 0
     h.tick(25)
@@ -271,7 +315,7 @@ def test_core_builds_strictly_and_allocates_nothing(tmp_path: Path) -> None:
     undefined = {s for s in nm if s != "U"}
     assert undefined <= {"memcpy", "memset", "fp_decoder_init", "fp_decoder_push", "fp_encode"} | {
         f"hal_{n}" for n in ("encoder_count", "encoder_fault", "adc_theta", "adc_theta_dot", "actuator_write",
-                             "uart_write", "tick_rate", "session_started")}, undefined
+                             "uart_write", "tick_rate", "session_started", "reset_cause", "uart_errors")}, undefined
     assert "hal_actuator_write" in undefined and "malloc" not in undefined
 
 
@@ -292,8 +336,13 @@ def test_furuta_rt_run_balances_with_the_c_device(tmp_path: Path) -> None:
     rc = d.wait(timeout=120)
     assert traceback_free(d.stderr + d.stdout), d.stderr
     assert rc == 0, f"exit {rc}\n{d.stderr}\n{d.stdout}"
-    assert "firmware 0.2.0" in d.stdout + d.stderr  # the C core's HELLO_ACK (the Python device says 0.1.0)
+    out = d.stdout + d.stderr
+    assert "firmware 0.3.0" in out  # the C core's HELLO_ACK (the Python device says 0.1.0)
+    assert "last start: power-on" in out and "reset by its watchdog" not in out  # HELLO_ACK's reset cause
+    # the device's own counts of what it received, from its STATUS, in the summary a user reads
+    assert "device's receiver (its last STATUS, this session): CRC errors 0, frame errors 0, UART overruns 0" in out
     s = read_summary(tmp_path)
+    assert s["device_link"] == {"crc_errors": 0, "frame_errors": 0, "uart_overruns": 0, "uart_line_errors": 0}
     # --duration is device time: a period the host missed (an overrun, a stale SAMPLE skipped) is a tick fewer
     missing = 3 * 500 - s["ticks"]
     assert s["end"] == "duration" and 0 <= missing <= s["overruns"] + s["skipped_periods"], s

@@ -48,7 +48,7 @@ def test_furuta_rt_run_balances_the_cross_compiled_core_under_qemu(tmp_path: Pat
     out = d.stdout + "\n".join(d.lines)
     assert traceback_free(out), out
     assert rc == 0, f"exit {rc}\n{out}"
-    assert f"device 0x51454d55 firmware 0.2.0 at {pty}, 500 Hz" in out  # the image's HELLO_ACK
+    assert f"device 0x51454d55 firmware 0.3.0 at {pty}, 500 Hz" in out  # the image's HELLO_ACK
     s = read_summary(tmp_path)
     assert s["end"] == "duration" and s["ticks"] == 3 * 500 and s["balanced_s"] > 2.9
     assert s["crc_errors"] == 0

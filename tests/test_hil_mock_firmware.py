@@ -64,7 +64,7 @@ class Bench:
 
     def step(self, seq: int, counts: int, flags: int = ENABLE) -> Sample:
         """Answer SAMPLE ``seq``, then tick once; return the next SAMPLE."""
-        self.send(encode_command(seq, counts, flags))
+        self.send(encode_command(77, seq, counts, flags))
         return samples(self.tick())[0]
 
 
@@ -113,7 +113,7 @@ def test_command_applied_at_next_tick_and_scaled_by_full_scale():
     out = b.step(0, 16384)  # answers SAMPLE 0 → applied at tick 1
     assert out.seq == 1 and out.status & StatusFlags.ENABLED
     assert b.fw.output == pytest.approx(2.0 * 16384 / 32767)
-    b.send(encode_command(1, -32768, ENABLE))  # §4: −32768 acts as −32767
+    b.send(encode_command(77, 1, -32768, ENABLE))  # §4: −32768 acts as −32767
     b.tick()
     assert b.fw.output == -2.0
 
@@ -122,9 +122,9 @@ def test_stale_and_future_commands_are_discarded():
     b = Bench()
     b.hello()
     b.tick(3)  # SAMPLEs 0..3 sent
-    b.send(encode_command(10, 1000, ENABLE))  # newer than the last SAMPLE sent
-    b.send(encode_command(3, 1000, ENABLE))
-    b.send(encode_command(2, 5000, ENABLE))  # older than the accepted one
+    b.send(encode_command(77, 10, 1000, ENABLE))  # newer than the last SAMPLE sent
+    b.send(encode_command(77, 3, 1000, ENABLE))
+    b.send(encode_command(77, 2, 5000, ENABLE))  # older than the accepted one
     s = samples(b.tick())[0]
     assert b.fw.commands_discarded == 2 and b.fw.output == pytest.approx(2.0 * 1000 / 32767)
     assert not s.status & StatusFlags.COMMAND_LATE  # 3 answered SAMPLE 3
@@ -197,7 +197,7 @@ def test_status_at_least_once_per_second():
     b.hello()
     msgs = []
     for k in range(450):  # 2.25 s, answered
-        b.send(encode_command(k, 0, ENABLE))
+        b.send(encode_command(77, k, 0, ENABLE))
         msgs += b.tick()
     statuses = [m for m in msgs if type(m) is Status]
     assert [s.last_cmd_seq for s in statuses] == [199, 399]  # at 1 s and 2 s after the HELLO
@@ -255,7 +255,7 @@ def test_firmware_reproduces_closed_loop_simulation():
         fw.tx.clear()
         th, thd, ph = cal.to_si(s.theta_adc, s.theta_dot_adc, s.phi_count)
         u = ctrl.update(Measurement(s.seq / 500, th, thd, ph)).u
-        fw.receive(encode_command(s.seq, actuator_to_counts(u, 2.0), ENABLE))
+        fw.receive(encode_command(1, s.seq, actuator_to_counts(u, 2.0), ENABLE))
         theta.append(th)
     assert theta[:50] == list(rec.theta[:50])  # bit-identical until the quantised commands tell
     assert max(abs(a - b) for a, b in zip(theta, rec.theta, strict=True)) < 5e-4  # a few ADC counts

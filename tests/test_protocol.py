@@ -81,8 +81,8 @@ def test_message_definitions_are_fixed_size_and_distinct() -> None:
         assert spec.inner_size < 254, "one COBS overhead byte per frame"
         direction_device_to_host = bool(spec.type_id & 0x80)
         assert direction_device_to_host == (spec.cls in (fp.HelloAck, fp.Sample, fp.Status))
-    assert fp.MAX_FRAME_LEN == max(s.inner_size for s in SPECS.values()) + 1 == 45
-    assert SPEC_BY_CLASS[fp.Sample].inner_size == 21 and SPEC_BY_CLASS[fp.Command].inner_size == 10
+    assert fp.MAX_FRAME_LEN == max(s.inner_size for s in SPECS.values()) + 1 == 46
+    assert SPEC_BY_CLASS[fp.Sample].inner_size == 21 and SPEC_BY_CLASS[fp.Command].inner_size == 14
 
 
 def test_messages_are_frozen_slotted_dataclasses() -> None:
@@ -255,21 +255,24 @@ def test_round_trip_every_type(cls: type[fp.Message], data: st.DataObject) -> No
 
 
 @FAST
-@given(seq=st.integers(0, 2**40), counts=st.integers(-32768, 32767), flags=st.integers(0, 255))
-def test_encode_command_fast_path(seq: int, counts: int, flags: int) -> None:
-    wire = fp.encode_command(seq, counts, flags)
-    assert wire == fp.encode(fp.Command(seq % 2**32, counts, flags))
+@given(session=st.integers(0, 2**32 - 1), seq=st.integers(0, 2**40), counts=st.integers(-32768, 32767),
+       flags=st.integers(0, 255))
+def test_encode_command_fast_path(session: int, seq: int, counts: int, flags: int) -> None:
+    wire = fp.encode_command(session, seq, counts, flags)
+    assert wire == fp.encode(fp.Command(session, seq % 2**32, counts, flags))
 
 
 def test_encode_rejects_out_of_range_fields() -> None:
     with pytest.raises(fp.EncodeError):
-        fp.encode(fp.Command(seq=-1, command=0, flags=0))
+        fp.encode(fp.Command(session=0, seq=-1, command=0, flags=0))
     with pytest.raises(fp.EncodeError):
         fp.encode(fp.Sample(0, 0, 40000, 0, 0, 0))
     with pytest.raises(fp.EncodeError):
-        fp.encode_command(1, 32768, 0)
+        fp.encode_command(7, 1, 32768, 0)
     with pytest.raises(fp.EncodeError):
-        fp.encode_command(1, 0, 256)
+        fp.encode_command(7, 1, 0, 256)
+    with pytest.raises(fp.EncodeError):
+        fp.encode_command(2**32, 1, 0, 0)
 
 
 def test_actuator_scaling() -> None:
@@ -426,7 +429,7 @@ def test_garbage_then_frames_resynchronises() -> None:
 
 
 def test_truncated_frame_is_rejected_and_next_frame_decoded() -> None:
-    s, c = fp.Sample(1, 2, 3, 4, 5, 6), fp.Command(1, -5, 1)
+    s, c = fp.Sample(1, 2, 3, 4, 5, 6), fp.Command(9, 1, -5, 1)
     ws = fp.encode(s)
     for cut in range(1, len(ws) - 1):
         dec = fp.StreamDecoder()

@@ -515,7 +515,7 @@ class ScriptedDaq:
                                 device_id=7, fw_major=1, fw_minor=2, fw_patch=3, sample_rate_hz=500, watchdog_ms=20,
                                 theta_rad_per_count=1e-4, theta_offset_counts=0, theta_dot_rad_s_per_count=1e-3,
                                 theta_dot_offset_counts=0, phi_counts_per_rev=4096, actuator_full_scale=2.0,
-                                actuator_kind=0)
+                                actuator_kind=0, reset_cause=fp.ResetCause.POWER_ON)
                     hellos = sum(isinstance(m, fp.Hello) for m in self.received)
                     if self.slow_first_hello and hellos == 1:
                         time.sleep(0.15)
@@ -527,7 +527,7 @@ class ScriptedDaq:
                             os.write(self.fd, fp.encode(fp.Sample(seq, t0_us + 2000 * seq, 0, 0, 0, 0)))
                 elif isinstance(msg, fp.Config):
                     rate = msg.rate_hz if self.status_rate is None else self.status_rate
-                    os.write(self.fd, fp.encode(fp.Status(self.status_flags, rate, msg.watchdog_ms, 0, 0, 1, 0)))
+                    os.write(self.fd, fp.encode(fp.Status(self.status_flags, rate, msg.watchdog_ms, 0, 0, 1, 0, 0, 0)))
 
     def close(self) -> None:
         """Stop serving, then read what the host wrote last (its STOP) that the serving thread had not read yet."""
@@ -563,6 +563,33 @@ def test_handshake_refuses_a_mismatched_device(ack: dict[str, Any], status_flags
         daq.close()
 
 
+@pytest.mark.parametrize(("cause", "words", "warned"), [
+    (fp.ResetCause.POWER_ON, "power-on", None),
+    (fp.ResetCause.WATCHDOG, "watchdog reset", "reset by its watchdog"),
+    (fp.ResetCause.FAULT, "fault reset", "after a fault in its firmware"),
+])
+def test_the_reset_cause_is_said_on_connect(cause: fp.ResetCause, words: str, warned: str | None) -> None:
+    """HELLO_ACK's reset cause reaches the user: in the log's metadata always, as a warning when the device's last
+    start was its watchdog's or its fault handler's (a hung or crashed firmware the user must hear about)."""
+    from furuta_rt.config import load_rig
+    from furuta_rt.runtime.daemon import _check_device
+
+    daq = ScriptedDaq({"reset_cause": int(cause), "actuator_full_scale": 2.0})
+    hw = SerialHardware(daq.port)
+    try:
+        info = hw.handshake(500, 20)
+    finally:
+        hw.close()
+        daq.close()
+    assert info.reset_cause == words and info.metadata()["reset_cause"] == words
+    warnings: list[str] = []
+    _check_device(info, load_rig("thesis"), warnings)
+    if warned is None:
+        assert not any("last reset" in w for w in warnings), warnings
+    else:
+        assert any(warned in w for w in warnings), warnings
+
+
 def test_handshake_configures_rate_and_watchdog_and_reads_the_calibration() -> None:
     daq = ScriptedDaq({"sample_rate_hz": 1000, "theta_offset_counts": -12, "theta_dot_offset_counts": 5})
     hw = SerialHardware(daq.port)
@@ -591,11 +618,15 @@ def test_a_retried_hello_answered_twice_follows_the_session_the_device_streams()
     try:
         info = hw.handshake(500, 20)
         first = hw.read(0.5)
+        assert first is not None
+        hw.write(first.seq, 100, int(fp.CommandFlags.ENABLE))
     finally:
         hw.close()
         daq.close()
     hellos = [m for m in daq.received if isinstance(m, fp.Hello)]
     assert len(hellos) >= 2 and info.ack.nonce == hellos[-1].nonce
+    commands = [m for m in daq.received if isinstance(m, fp.Command)]  # bound to the session the device streams
+    assert [c.session for c in commands] == [hellos[-1].nonce], commands
     assert first is not None and (first.seq, first.t_us) == (0, 50_000)
 
 

@@ -208,9 +208,10 @@ static void pack_body(const fp_msg_t *msg, uint8_t *b)
         put_u16(b + 2, msg->u.config.watchdog_ms);
         break;
     case FP_MSG_COMMAND:
-        put_u32(b, msg->u.command.seq);
-        put_i16(b + 4, msg->u.command.command);
-        b[6] = msg->u.command.flags;
+        put_u32(b, msg->u.command.session);
+        put_u32(b + 4, msg->u.command.seq);
+        put_i16(b + 8, msg->u.command.command);
+        b[10] = msg->u.command.flags;
         break;
     case FP_MSG_STOP:
         b[0] = msg->u.stop.reason;
@@ -233,6 +234,7 @@ static void pack_body(const fp_msg_t *msg, uint8_t *b)
         put_u32(b + 32, m->phi_counts_per_rev);
         put_f32(b + 36, m->actuator_full_scale);
         b[40] = m->actuator_kind;
+        b[41] = m->reset_cause;
         break;
     }
     case FP_MSG_SAMPLE: {
@@ -254,6 +256,8 @@ static void pack_body(const fp_msg_t *msg, uint8_t *b)
         put_u32(b + 10, m->frame_errors);
         put_u32(b + 14, m->frames_rx);
         put_u32(b + 18, m->last_cmd_seq);
+        put_u32(b + 22, m->uart_overruns);
+        put_u32(b + 26, m->uart_line_errors);
         break;
     }
     default:
@@ -277,9 +281,10 @@ static void unpack_body(const uint8_t *b, fp_msg_t *msg)
         msg->u.config.watchdog_ms = get_u16(b + 2);
         break;
     case FP_MSG_COMMAND:
-        msg->u.command.seq = get_u32(b);
-        msg->u.command.command = get_i16(b + 4);
-        msg->u.command.flags = b[6];
+        msg->u.command.session = get_u32(b);
+        msg->u.command.seq = get_u32(b + 4);
+        msg->u.command.command = get_i16(b + 8);
+        msg->u.command.flags = b[10];
         break;
     case FP_MSG_STOP:
         msg->u.stop.reason = b[0];
@@ -302,6 +307,7 @@ static void unpack_body(const uint8_t *b, fp_msg_t *msg)
         m->phi_counts_per_rev = get_u32(b + 32);
         m->actuator_full_scale = get_f32(b + 36);
         m->actuator_kind = b[40];
+        m->reset_cause = b[41];
         break;
     }
     case FP_MSG_SAMPLE: {
@@ -323,6 +329,8 @@ static void unpack_body(const uint8_t *b, fp_msg_t *msg)
         m->frame_errors = get_u32(b + 10);
         m->frames_rx = get_u32(b + 14);
         m->last_cmd_seq = get_u32(b + 18);
+        m->uart_overruns = get_u32(b + 22);
+        m->uart_line_errors = get_u32(b + 26);
         break;
     }
     default:

@@ -26,10 +26,10 @@ extern "C" {
 #endif
 
 /* ---- protocol identity (checked at handshake) --------------------------------------- */
-#define FP_PROTOCOL_VERSION 1u
+#define FP_PROTOCOL_VERSION 2u
 /* Hash of the message definitions; must equal firmware_protocol.SCHEMA_HASH.
  * The test suite checks it against vectors/golden.json. */
-#define FP_SCHEMA_HASH 0x4124CBDBu
+#define FP_SCHEMA_HASH 0xBDD6DF13u
 
 #define FP_COMMAND_FULL_SCALE 32767 /* COMMAND.command counts at actuator full scale */
 #define FP_DEFAULT_WATCHDOG_MS 20u
@@ -47,14 +47,14 @@ extern "C" {
 /* ---- body sizes in bytes (without type byte and CRC) --------------------------------- */
 #define FP_BODY_HELLO 9u
 #define FP_BODY_CONFIG 4u
-#define FP_BODY_COMMAND 7u
+#define FP_BODY_COMMAND 11u
 #define FP_BODY_STOP 1u
-#define FP_BODY_HELLO_ACK 41u
+#define FP_BODY_HELLO_ACK 42u
 #define FP_BODY_SAMPLE 18u
-#define FP_BODY_STATUS 22u
+#define FP_BODY_STATUS 30u
 
-#define FP_MAX_INNER_LEN (1u + FP_BODY_HELLO_ACK + 2u) /* largest type|body|crc: 44 */
-#define FP_MAX_FRAME_LEN (FP_MAX_INNER_LEN + 1u)       /* largest COBS frame, no delimiter: 45 */
+#define FP_MAX_INNER_LEN (1u + FP_BODY_HELLO_ACK + 2u) /* largest type|body|crc: 45 */
+#define FP_MAX_FRAME_LEN (FP_MAX_INNER_LEN + 1u)       /* largest COBS frame, no delimiter: 46 */
 #define FP_MAX_WIRE_LEN (FP_MAX_FRAME_LEN + 1u)        /* with the 0x00 delimiter: TX buffer size */
 
 /* ---- status flags (SAMPLE.status, STATUS.flags) -------------------------------------- */
@@ -76,6 +76,14 @@ extern "C" {
 /* ---- actuator kind (HELLO_ACK.actuator_kind) ------------------------------------------ */
 #define FP_ACT_TORQUE_NM 0u
 #define FP_ACT_VOLTAGE_V 1u
+
+/* ---- reset cause (HELLO_ACK.reset_cause) ----------------------------------------------- */
+#define FP_RESET_UNKNOWN 0u
+#define FP_RESET_POWER_ON 1u /* power-on or brown-out */
+#define FP_RESET_PIN 2u      /* the reset pin (button, debugger) */
+#define FP_RESET_WATCHDOG 3u /* the hardware watchdog: the firmware hung */
+#define FP_RESET_SOFTWARE 4u /* the firmware asked for it */
+#define FP_RESET_FAULT 5u    /* the fault handler took the drive off and let the watchdog reset */
 
 /* ---- messages -------------------------------------------------------------------------- */
 typedef struct {
@@ -101,6 +109,7 @@ typedef struct {
     uint32_t phi_counts_per_rev;
     float actuator_full_scale; /* N m or V at COMMAND.command == FP_COMMAND_FULL_SCALE */
     uint8_t actuator_kind;     /* FP_ACT_* */
+    uint8_t reset_cause;       /* FP_RESET_*: what started the firmware that answers */
 } fp_hello_ack_t;
 
 typedef struct {
@@ -109,6 +118,7 @@ typedef struct {
 } fp_config_t;
 
 typedef struct {
+    uint32_t session; /* nonce of the HELLO that started the session: another session's COMMAND is discarded */
     uint32_t seq;    /* seq of the SAMPLE this command answers */
     int16_t command; /* actuator command, +-FP_COMMAND_FULL_SCALE = +-full scale */
     uint8_t flags;   /* FP_CMD_* */
@@ -135,6 +145,8 @@ typedef struct {
     uint32_t frame_errors;
     uint32_t frames_rx;
     uint32_t last_cmd_seq;
+    uint32_t uart_overruns;    /* received bytes lost before the firmware read them */
+    uint32_t uart_line_errors; /* bytes received with a framing, noise or parity error */
 } fp_status_t;
 
 typedef struct {

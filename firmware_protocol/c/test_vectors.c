@@ -155,17 +155,18 @@ static int msg_from_values(unsigned type, const double *v, int n, fp_msg_t *m)
         m->u.config.watchdog_ms = (uint16_t)v[1];
         return 0;
     case FP_MSG_COMMAND:
-        if (n != 3) return -1;
-        m->u.command.seq = (uint32_t)v[0];
-        m->u.command.command = (int16_t)v[1];
-        m->u.command.flags = (uint8_t)v[2];
+        if (n != 4) return -1;
+        m->u.command.session = (uint32_t)v[0];
+        m->u.command.seq = (uint32_t)v[1];
+        m->u.command.command = (int16_t)v[2];
+        m->u.command.flags = (uint8_t)v[3];
         return 0;
     case FP_MSG_STOP:
         if (n != 1) return -1;
         m->u.stop.reason = (uint8_t)v[0];
         return 0;
     case FP_MSG_HELLO_ACK:
-        if (n != 16) return -1;
+        if (n != 17) return -1;
         m->u.hello_ack.protocol_version = (uint8_t)v[0];
         m->u.hello_ack.schema_hash = (uint32_t)v[1];
         m->u.hello_ack.nonce = (uint32_t)v[2];
@@ -182,6 +183,7 @@ static int msg_from_values(unsigned type, const double *v, int n, fp_msg_t *m)
         m->u.hello_ack.phi_counts_per_rev = (uint32_t)v[13];
         m->u.hello_ack.actuator_full_scale = (float)v[14];
         m->u.hello_ack.actuator_kind = (uint8_t)v[15];
+        m->u.hello_ack.reset_cause = (uint8_t)v[16];
         return 0;
     case FP_MSG_SAMPLE:
         if (n != 6) return -1;
@@ -193,7 +195,7 @@ static int msg_from_values(unsigned type, const double *v, int n, fp_msg_t *m)
         m->u.sample.status = (uint16_t)v[5];
         return 0;
     case FP_MSG_STATUS:
-        if (n != 7) return -1;
+        if (n != 9) return -1;
         m->u.status.flags = (uint16_t)v[0];
         m->u.status.rate_hz = (uint16_t)v[1];
         m->u.status.watchdog_ms = (uint16_t)v[2];
@@ -201,6 +203,8 @@ static int msg_from_values(unsigned type, const double *v, int n, fp_msg_t *m)
         m->u.status.frame_errors = (uint32_t)v[4];
         m->u.status.frames_rx = (uint32_t)v[5];
         m->u.status.last_cmd_seq = (uint32_t)v[6];
+        m->u.status.uart_overruns = (uint32_t)v[7];
+        m->u.status.uart_line_errors = (uint32_t)v[8];
         return 0;
     default:
         return -1;
@@ -220,7 +224,8 @@ static int msg_equal(const fp_msg_t *a, const fp_msg_t *b)
     case FP_MSG_CONFIG:
         return a->u.config.rate_hz == b->u.config.rate_hz && a->u.config.watchdog_ms == b->u.config.watchdog_ms;
     case FP_MSG_COMMAND:
-        return a->u.command.seq == b->u.command.seq && a->u.command.command == b->u.command.command &&
+        return a->u.command.session == b->u.command.session && a->u.command.seq == b->u.command.seq &&
+               a->u.command.command == b->u.command.command &&
                a->u.command.flags == b->u.command.flags;
     case FP_MSG_STOP:
         return a->u.stop.reason == b->u.stop.reason;
@@ -237,7 +242,7 @@ static int msg_equal(const fp_msg_t *a, const fp_msg_t *b)
                x->theta_dot_offset_counts == y->theta_dot_offset_counts &&
                x->phi_counts_per_rev == y->phi_counts_per_rev &&
                memcmp(&x->actuator_full_scale, &y->actuator_full_scale, 4) == 0 &&
-               x->actuator_kind == y->actuator_kind;
+               x->actuator_kind == y->actuator_kind && x->reset_cause == y->reset_cause;
     }
     case FP_MSG_SAMPLE:
         return a->u.sample.seq == b->u.sample.seq && a->u.sample.t_us == b->u.sample.t_us &&
@@ -250,7 +255,9 @@ static int msg_equal(const fp_msg_t *a, const fp_msg_t *b)
                a->u.status.crc_errors == b->u.status.crc_errors &&
                a->u.status.frame_errors == b->u.status.frame_errors &&
                a->u.status.frames_rx == b->u.status.frames_rx &&
-               a->u.status.last_cmd_seq == b->u.status.last_cmd_seq;
+               a->u.status.last_cmd_seq == b->u.status.last_cmd_seq &&
+               a->u.status.uart_overruns == b->u.status.uart_overruns &&
+               a->u.status.uart_line_errors == b->u.status.uart_line_errors;
     default:
         return 0;
     }

@@ -135,6 +135,9 @@ def _check_device(info: DeviceInfo, rig: RigConfig, warnings: list[str]) -> None
     bad = info.implausible()
     if bad:
         raise UserError(f"the device's HELLO_ACK is not usable: {bad}; check the firmware")
+    reset = info.reset_warning()
+    if reset:
+        warnings.append(reset)
     if info.actuator_kind != rig.actuator.kind:
         raise UserError(f"the device drives a {info.actuator_kind} actuator but rig '{rig.name}' is configured "
                         f"for '{rig.actuator.kind}'; use the matching --config")
@@ -433,7 +436,7 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
                 children.log_q.put_nowait(("metadata", METADATA_NAME, {
                     "source": opts.experiment_source, "plan": opts.experiment.to_toml()}))
         loop.event("INFO", f"device {info.ack.device_id:#010x} firmware {info.firmware} at {port}, {info.rate_hz} Hz, "
-                   f"watchdog {info.watchdog_ms} ms; {', '.join(applied)}")
+                   f"watchdog {info.watchdog_ms} ms, last start: {info.reset_cause}; {', '.join(applied)}")
         for w in warnings + late_warnings:  # printed above: logged here (the dashboard shows the log's events)
             loop.event("WARNING", w, show=False)
         warnings += late_warnings

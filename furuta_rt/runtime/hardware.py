@@ -27,6 +27,7 @@ from firmware_protocol import (
     Config,
     HandshakeError,
     HelloAck,
+    ResetCause,
     Sample,
     Status,
     StatusFlags,
@@ -99,6 +100,25 @@ class DeviceInfo:
         return None
 
     @property
+    def reset_cause(self) -> str:
+        """Why the device last started, in words (HELLO_ACK.reset_cause)."""
+        try:
+            cause = ResetCause(self.ack.reset_cause)
+        except ValueError:
+            return f"unknown reset cause {self.ack.reset_cause}"
+        return RESET_WORDS[cause]
+
+    def reset_warning(self) -> str | None:
+        """What a user must hear on connect: the device's last start was its watchdog's or its fault handler's."""
+        if self.ack.reset_cause == ResetCause.WATCHDOG:
+            return ("the device was last reset by its watchdog (the firmware hung, or its tick stalled); "
+                    "if that was not a power-up or the reset button, check the firmware and its wiring")
+        if self.ack.reset_cause == ResetCause.FAULT:
+            return ("the device was last reset after a fault in its firmware (its fault handler took the drive off); "
+                    "attach a debugger or reflash before trusting it")
+        return None
+
+    @property
     def firmware(self) -> str:
         a = self.ack
         return f"{a.fw_major}.{a.fw_minor}.{a.fw_patch}"
@@ -110,7 +130,18 @@ class DeviceInfo:
         out["schema_hash"] = f"{self.ack.schema_hash:#010x}"
         out["applied_rate_hz"] = str(self.rate_hz)
         out["applied_watchdog_ms"] = str(self.watchdog_ms)
+        out["reset_cause"] = self.reset_cause
         return out
+
+
+RESET_WORDS = {
+    ResetCause.UNKNOWN: "reset cause unknown",
+    ResetCause.POWER_ON: "power-on",
+    ResetCause.PIN: "reset pin",
+    ResetCause.WATCHDOG: "watchdog reset",
+    ResetCause.SOFTWARE: "software reset",
+    ResetCause.FAULT: "fault reset",
+}
 
 
 class HardwareInterface(ABC):
@@ -196,6 +227,7 @@ class SerialHardware(HardwareInterface):
         self._last_seq: int | None = None  # newest SAMPLE returned by read() in this session
         self._written: int | None = None  # seq of the last COMMAND written whole in this session
         self._torn = False  # a frame went out in part: the device's decoder needs a delimiter first
+        self._session = 0  # the nonce of the HELLO the device streams for: every COMMAND carries it (PROTOCOL.md §6)
         self.arrival_ns = 0
         self.status: Status | None = None
         self.write_errors = 0
@@ -329,6 +361,7 @@ class SerialHardware(HardwareInterface):
         except HandshakeError as err:
             raise UserError(f"handshake with {self.port} failed: {err}; flash firmware built from this "
                             "firmware_protocol version") from None
+        self._session = ack.nonce  # type: ignore[attr-defined]
         if ack.sample_rate_hz == rate_hz and ack.watchdog_ms == watchdog_ms:  # type: ignore[attr-defined]
             self.info = DeviceInfo(ack=ack, rate_hz=rate_hz, watchdog_ms=watchdog_ms)  # type: ignore[arg-type]
         else:  # PROTOCOL.md §5: CONFIG is needed only to change what the HELLO_ACK reports
@@ -373,7 +406,7 @@ class SerialHardware(HardwareInterface):
         return len(self._queue)
 
     def write(self, seq: int, counts: int, flags: int) -> None:
-        self._send(encode_command(seq, counts, flags))
+        self._send(encode_command(self._session, seq, counts, flags))
         self._written = seq
 
     def _drain(self) -> None:
@@ -401,7 +434,7 @@ class SerialHardware(HardwareInterface):
         seq = zero_answer(newest, self._written)
         # STOP twice: on a noisy link one corrupted frame must not leave the actuator enabled (the device
         # drops a bad frame silently; a second STOP is harmless). A second zero COMMAND would be discarded.
-        frames = ([] if seq is None else [encode_command(seq, 0, 0)]) + [encode(Stop(reason=0))] * 2
+        frames = ([] if seq is None else [encode_command(self._session, seq, 0, 0)]) + [encode(Stop(reason=0))] * 2
         try:
             for frame in frames:
                 self._send(frame, self.STOP_TIMEOUT_S)
@@ -434,6 +467,8 @@ class SerialHardware(HardwareInterface):
         if self.status is not None:
             out["device_crc_errors"] = self.status.crc_errors
             out["device_frame_errors"] = self.status.frame_errors
+            out["device_uart_overruns"] = self.status.uart_overruns
+            out["device_uart_line_errors"] = self.status.uart_line_errors
         return out
 
 

@@ -93,6 +93,7 @@ class LoopResult:
     device_overruns: int = 0  # samples flagged TICK_OVERRUN: the device itself was late
     seq_gaps: int = 0
     crc_errors: int = 0
+    device_link: dict[str, int] = field(default_factory=dict)  # the device's own link counters (its last STATUS)
     dropped_log_messages: int = 0
     period_us: Histogram = field(default_factory=Histogram)
     jitter_us: Histogram = field(default_factory=Histogram)
@@ -275,6 +276,8 @@ class ControlLoop:
             if self.sup.tripped:
                 r.trip_message = self.sup.transitions[-1].message
             r.crc_errors = self.hw.crc_errors
+            r.device_link = {k.removeprefix("device_"): v for k, v in self.hw.counters().items()
+                             if k.startswith("device_")}
             self._flush_batch()
         return self.result
 

@@ -75,7 +75,7 @@ def summary_dict(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path
         "lateness_us": hist(r.lateness_us),
         "overruns": r.overruns, "skipped_periods": r.skipped_periods, "late_commands": r.late_commands,
         "device_overruns": r.device_overruns, "seq_gaps": r.seq_gaps, "crc_errors": r.crc_errors,
-        "dropped_log_messages": r.dropped_log_messages,
+        "dropped_log_messages": r.dropped_log_messages, "device_link": dict(r.device_link),
         "std_theta": _num(r.theta.std), "std_phi": _num(r.phi.std), "std_u": _num(r.u.std),
         "mean_u_comp": _num(r.u_comp.mean) if r.u_comp.n else None, "std_u_comp": _num(r.u_comp.std),
         "limit_cycle_phi": asdict(lc_phi) if lc_phi else None, "limit_cycle_theta": asdict(lc_theta) if lc_theta else None,
@@ -149,6 +149,11 @@ def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_pa
         f"own overruns {r.device_overruns}; seq gaps {r.seq_gaps}, CRC errors {r.crc_errors}, "
         f"log drops {r.dropped_log_messages}",
     ]
+    if r.device_link:
+        d = r.device_link
+        lines.append(f"  device's receiver (its last STATUS, this session): CRC errors {d.get('crc_errors', 0)}, "
+                     f"frame errors {d.get('frame_errors', 0)}, UART overruns {d.get('uart_overruns', 0)}, "
+                     f"UART line errors {d.get('uart_line_errors', 0)}")
     if comp_source:
         lines.append(f"  compensation: {comp_source}")
     if fc_hat is not None:

@@ -19,7 +19,7 @@ import dataclasses
 import re
 from pathlib import Path
 
-from firmware_protocol import Command, Hello, Sample, Stop, StreamDecoder
+from firmware_protocol import Command, Hello, ResetCause, Sample, Stop, StreamDecoder
 from firmware_protocol.hostbuild import FIRMWARE_DIR, build_dir
 from furuta_rt.config import RigConfig
 from furuta_rt.model.rig import RigModel
@@ -34,6 +34,7 @@ THETA_CHANNEL, THETA_DOT_CHANNEL = 4, 8  # ADC1_IN4 = PA4, ADC1_IN8 = PB0
 PIN_PWM, PIN_DIR = 8, 7  # PA8 = TIM1_CH1 (AF1), PA7 = direction
 MODE_OUTPUT, MODE_AF, AF_TIM1 = 1, 2, 1
 ADC_MID = 2048
+_MCU_RESET = {ResetCause.POWER_ON: "power", ResetCause.PIN: "pin", ResetCause.WATCHDOG: "watchdog"}
 
 
 def image_path() -> Path:
@@ -160,7 +161,7 @@ class BoardFirmware(Firmware):
             t = type(msg)
             if t is Command:
                 self.commands_rx += 1
-                if self.streaming and msg.seq == self._last_sample:  # type: ignore[attr-defined]
+                if self.streaming and msg.seq == self._last_sample and msg.session == self.session:  # type: ignore[attr-defined]
                     self._answered = True
             elif t is Hello:
                 if self.plant_start_ns is None:
@@ -170,6 +171,7 @@ class BoardFirmware(Firmware):
                     self.replacements += 1
                 self.handshakes += 1
                 self.streaming = True
+                self.session = msg.nonce  # type: ignore[attr-defined]
                 self._last_sample = None
             elif t is Stop:
                 self.streaming = False
@@ -198,11 +200,15 @@ class BoardFirmware(Firmware):
             self.clock_ns += dt
             self.advance_plant()
 
-    def reboot(self) -> None:
+    def reboot(self, cause: ResetCause = ResetCause.PIN) -> None:
+        """A reset of the board for ``cause`` (its RCC_CSR flags set as the hardware sets them)."""
         self.tx.clear()
         self.reboots += 1
+        self.reset_cause = cause
         self.streaming = False
-        self.mcu.reset()
+        if cause not in _MCU_RESET:
+            raise ValueError(f"the board model resets by {', '.join(c.name for c in _MCU_RESET)}, not {cause.name}")
+        self.mcu.reset(_MCU_RESET[cause])
         self._after()
         self.clock_ns = self._next_tick()
 

@@ -430,15 +430,20 @@ class Stm32f401:
     def reset(self, cause: str = "power") -> None:
         """A reset (``cause``: "power" the first time, "watchdog" when the IWDG expires, "pin" the reset button):
         registers to their reset values, RCC_CSR's flags set as the cause sets them (and kept until the firmware
-        clears them), run from the reset vector to idle."""
+        clears them), the SRAM kept but by a power-on, run from the reset vector to idle."""
+        ram = None
         if self.resets:
             kept = self.rcc.regs[Rcc.CSR] & Rcc.RESET_FLAGS
             self._reset_flags = kept | {"power": 0x0E000000, "watchdog": 0x24000000, "pin": 0x04000000}[cause]
+            if cause != "power":  # a system reset keeps the SRAM's content (what start-up does not clear survives)
+                ram = bytes(self.uc.mem_read(RAM_BASE, RAM_SIZE))
         self.uc.emu_stop()
         cyc = self.cycles()
         uc_old = getattr(self, "uc", None)
         self._build()
         del uc_old
+        if ram is not None:
+            self.uc.mem_write(RAM_BASE, ram)
         self.dwt_cyccnt_base = cyc  # CYCCNT is in the debug domain; no matter, board.c zeroes it
         self.resets += 1
         sp, pc = struct.unpack("<II", self.uc.mem_read(FLASH_BASE, 8))

@@ -106,6 +106,8 @@ static void send_status(fw_t *fw)
 {
     fp_msg_t m;
     const fp_decoder_t *d = &fw->dec;
+    uint32_t overruns, line_errors;
+    hal_uart_errors(fw->hal, &overruns, &line_errors);
     m.type = FP_MSG_STATUS;
     m.u.status.flags = fw_status_flags(fw);
     m.u.status.rate_hz = fw->rate_hz;
@@ -114,6 +116,8 @@ static void send_status(fw_t *fw)
     m.u.status.frame_errors = decoder_errors(d) - d->crc_errors - fw->base_other;
     m.u.status.frames_rx = d->frames_ok - fw->base_ok;
     m.u.status.last_cmd_seq = fw->last_cmd_seq;
+    m.u.status.uart_overruns = overruns - fw->base_uart_overruns;
+    m.u.status.uart_line_errors = line_errors - fw->base_uart_line_errors;
     send_msg(fw, &m);
     fw->n.status_sent++;
 }
@@ -144,6 +148,7 @@ static void boot(fw_t *fw)
     fw->any_sent = 0u;
     fw->rx_errors_seen = decoder_errors(&fw->dec);
     fw->base_crc = fw->base_other = fw->base_ok = 0u;
+    hal_uart_errors(fw->hal, &fw->base_uart_overruns, &fw->base_uart_line_errors);
     fw->last_cmd_ns = 0u;
     fw->next_status_ns = 0u;
     go_idle(fw);
@@ -206,6 +211,7 @@ static void on_hello(fw_t *fw, const fp_hello_t *h)
     m.u.hello_ack.phi_counts_per_rev = b->phi_counts_per_rev;
     m.u.hello_ack.actuator_full_scale = b->actuator_full_scale;
     m.u.hello_ack.actuator_kind = b->actuator_kind;
+    m.u.hello_ack.reset_cause = hal_reset_cause(fw->hal);
     buf[0] = 0u; /* §2.1: flush the peer's partial frame */
     send(fw, buf, 1u + fp_encode(&m, buf + 1, sizeof buf - 1u));
 
@@ -218,6 +224,7 @@ static void on_hello(fw_t *fw, const fp_hello_t *h)
     hal_session_started(fw->hal, (uint8_t)!was_streaming);
     go_idle(fw); /* restart the session: output zero, faults kept */
     fw->streaming = 1u;
+    fw->session = h->nonce; /* from now on a COMMAND of an earlier session is discarded */
     fw->seq = 0u;
     fw->any_sent = 0u;
     fw->sticky = 0u;
@@ -227,6 +234,7 @@ static void on_hello(fw_t *fw, const fp_hello_t *h)
     fw->base_other = decoder_errors(d) - d->crc_errors;
     fw->base_ok = d->frames_ok; /* the HELLO itself is not counted */
     fw->rx_errors_seen = decoder_errors(d);
+    hal_uart_errors(fw->hal, &fw->base_uart_overruns, &fw->base_uart_line_errors);
 }
 
 static void on_config(fw_t *fw, const fp_config_t *c)
@@ -254,6 +262,11 @@ static void on_command(fw_t *fw, const fp_command_t *c)
     uint32_t ref = fw->fresh.valid ? fw->fresh.seq : fw->last_applied;
 
     fw->n.commands_rx++;
+    if (fw->streaming && c->session != fw->session) {
+        fw->n.commands_discarded++; /* another session's (delayed, or a second host's): never applied */
+        fw->n.commands_other_session++;
+        return;
+    }
     if (!fw->streaming || !fw_command_accepted(c->seq, fw->any_sent, last_sent, any_ref, ref)) {
         fw->n.commands_discarded++; /* stale: not applied, does not feed the watchdog */
         return;

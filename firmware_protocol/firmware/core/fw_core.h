@@ -23,7 +23,7 @@
 #include "fw_hal.h"
 
 #define FW_VERSION_MAJOR 0u
-#define FW_VERSION_MINOR 2u
+#define FW_VERSION_MINOR 3u
 #define FW_VERSION_PATCH 0u
 #define FW_STATUS_PERIOD_NS 1000000000u /* STATUS at least once per second while streaming */
 
@@ -60,7 +60,7 @@ typedef struct {
 
 /* Counters for diagnostics (never reset by the protocol, only by fw_init). */
 typedef struct {
-    uint32_t commands_rx, commands_applied, commands_discarded;
+    uint32_t commands_rx, commands_applied, commands_discarded, commands_other_session;
     uint32_t watchdog_trips, handshakes, handshakes_refused;
     uint32_t samples_sent, status_sent, hangups, reboots, tx_dropped;
 } fw_counters_t;
@@ -79,6 +79,7 @@ typedef struct {
     uint16_t sticky;  /* CRC_ERROR | TICK_OVERRUN | TX_OVERFLOW since the previous SAMPLE */
     uint8_t config_rejected;
     uint8_t streaming, enabled, answered;
+    uint32_t session;  /* nonce of the HELLO that started the session: every COMMAND must carry it */
     uint8_t any_sent;  /* a SAMPLE was sent in this session */
     uint32_t seq;      /* seq of the next SAMPLE */
     fw_cmd_t held;     /* the applied COMMAND being held */
@@ -88,6 +89,7 @@ typedef struct {
     uint64_t last_cmd_ns, next_status_ns;
     uint32_t rx_errors_seen;
     uint32_t base_crc, base_other, base_ok; /* decoder counters at the last HELLO */
+    uint32_t base_uart_overruns, base_uart_line_errors; /* the HAL's UART counters at the last HELLO */
     int16_t output;                         /* last value written to the actuator */
     fw_counters_t n;
 } fw_t;

@@ -36,5 +36,10 @@ uint8_t hal_uart_write(fw_hal_t *hal, const uint8_t *data, size_t len);
 void hal_tick_rate(fw_hal_t *hal, uint16_t rate_hz);
 /* A HELLO was accepted; new_session: the device was idle before (a new host). */
 void hal_session_started(fw_hal_t *hal, uint8_t new_session);
+/* What started this firmware (FP_RESET_*), for HELLO_ACK: constant from start-up. */
+uint8_t hal_reset_cause(fw_hal_t *hal);
+/* The receiver's error counts since start-up, free-running (they wrap): bytes lost before the firmware read them
+ * (the UART's overrun, a full receive buffer) and bytes received with a framing, noise or parity error. */
+void hal_uart_errors(fw_hal_t *hal, uint32_t *overruns, uint32_t *line_errors);
 
 #endif /* FW_HAL_H */

@@ -18,6 +18,8 @@ struct fw_hal {
     int16_t actuator;
     uint16_t tick_rate_hz;
     uint32_t sessions, new_sessions;
+    uint8_t reset_cause;
+    uint32_t uart_overruns, uart_line_errors;
     uint32_t tx_len, tx_frames;
     uint8_t tx[HOST_TX_BYTES];
     uint16_t tx_frame_len[HOST_TX_FRAMES];
@@ -46,6 +48,14 @@ void hal_session_started(fw_hal_t *hal, uint8_t new_session)
     }
 }
 
+uint8_t hal_reset_cause(fw_hal_t *hal) { return hal->reset_cause; }
+
+void hal_uart_errors(fw_hal_t *hal, uint32_t *overruns, uint32_t *line_errors)
+{
+    *overruns = hal->uart_overruns;
+    *line_errors = hal->uart_line_errors;
+}
+
 uint8_t hal_uart_write(fw_hal_t *hal, const uint8_t *data, size_t len)
 {
     if (hal->tx_frames >= HOST_TX_FRAMES || len > HOST_TX_BYTES - hal->tx_len) {
@@ -64,7 +74,8 @@ void host_device_init(host_device_t *dev, const fw_board_t *board);
 void host_rx(host_device_t *dev, const uint8_t *data, size_t len);
 void host_tick(host_device_t *dev, int16_t theta_adc, int16_t theta_dot_adc, int32_t phi_count, uint8_t encoder_fault);
 void host_skip(host_device_t *dev, uint32_t periods);
-void host_reboot(host_device_t *dev);
+void host_reboot(host_device_t *dev, uint8_t reset_cause);
+void host_uart_errors(host_device_t *dev, uint32_t overruns, uint32_t line_errors);
 void host_hangup(host_device_t *dev);
 void host_note_tx_overflow(host_device_t *dev);
 uint32_t host_take_tx(host_device_t *dev, uint8_t *out, uint16_t *frame_len);
@@ -80,6 +91,7 @@ void host_device_init(host_device_t *dev, const fw_board_t *board)
 {
     memset(dev, 0, sizeof *dev);
     dev->board = *board;
+    dev->hal.reset_cause = FP_RESET_POWER_ON;
     fw_init(&dev->fw, &dev->board, &dev->hal);
 }
 
@@ -102,10 +114,20 @@ void host_tick(host_device_t *dev, int16_t theta_adc, int16_t theta_dot_adc, int
 
 void host_skip(host_device_t *dev, uint32_t periods) { fw_skip(&dev->fw, periods); }
 
-void host_reboot(host_device_t *dev)
+/* A device reset for `reset_cause` (FP_RESET_*); the UART's error counters restart with it. */
+void host_reboot(host_device_t *dev, uint8_t reset_cause)
 {
     dev->hal.tx_len = dev->hal.tx_frames = 0u; /* frames not yet written are lost with the reset */
+    dev->hal.reset_cause = reset_cause;
+    dev->hal.uart_overruns = dev->hal.uart_line_errors = 0u;
     fw_reboot(&dev->fw);
+}
+
+/* The receiver's error counts since start-up, as a UART would count them (hil_mock simulates a line). */
+void host_uart_errors(host_device_t *dev, uint32_t overruns, uint32_t line_errors)
+{
+    dev->hal.uart_overruns = overruns;
+    dev->hal.uart_line_errors = line_errors;
 }
 
 void host_hangup(host_device_t *dev) { fw_hangup(&dev->fw); }
@@ -155,6 +177,7 @@ void host_state(const host_device_t *dev, uint64_t *out)
     out[25] = d->crc_errors + d->length_errors + d->unknown_type + d->cobs_errors + d->overlong;
     out[26] = fw->seq;
     out[27] = fw->last_cmd_seq;
+    out[28] = fw->n.commands_other_session;
 }
 
 uint8_t host_command_accepted(uint32_t seq, uint8_t any_sent, uint32_t last_sent, uint8_t any_accepted,

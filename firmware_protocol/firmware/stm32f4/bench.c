@@ -41,6 +41,12 @@ int16_t hal_adc_theta_dot(fw_hal_t *h) { return h->theta_dot; }
 void hal_actuator_write(fw_hal_t *h, int16_t counts) { h->actuator = counts; }
 void hal_tick_rate(fw_hal_t *h, uint16_t rate_hz) { (void)h; (void)rate_hz; }
 void hal_session_started(fw_hal_t *h, uint8_t new_session) { (void)h; (void)new_session; }
+uint8_t hal_reset_cause(fw_hal_t *h) { (void)h; return FP_RESET_POWER_ON; }
+void hal_uart_errors(fw_hal_t *h, uint32_t *overruns, uint32_t *line_errors)
+{
+    (void)h;
+    *overruns = *line_errors = 0u;
+}
 
 uint8_t hal_uart_write(fw_hal_t *h, const uint8_t *data, size_t len) { return ring_put_all(&h->tx, data, len); }
 
@@ -55,10 +61,13 @@ static void queue(const fp_msg_t *m)
     rx_len += n;
 }
 
+#define SESSION 7u /* the HELLO's nonce, carried by every COMMAND */
+
 static void queue_command(uint32_t seq, int16_t counts, uint8_t flags)
 {
     fp_msg_t m;
     m.type = FP_MSG_COMMAND;
+    m.u.command.session = SESSION;
     m.u.command.seq = seq;
     m.u.command.command = counts;
     m.u.command.flags = flags;
@@ -154,7 +163,7 @@ int main(void)
     m.type = FP_MSG_HELLO;
     m.u.hello.protocol_version = FP_PROTOCOL_VERSION;
     m.u.hello.schema_hash = FP_SCHEMA_HASH;
-    m.u.hello.nonce = 7u;
+    m.u.hello.nonce = SESSION;
     queue(&m);
     m.type = FP_MSG_CONFIG;
     m.u.config.rate_hz = 1000u;

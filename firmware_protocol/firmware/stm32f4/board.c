@@ -61,11 +61,16 @@ struct fw_hal {
 
 static fw_hal_t hal;
 static fw_t fw;
-/* For a debugger (FIRMWARE.md, bring-up), until the protocol carries them: RCC_CSR's reset flags at start-up
- * (1 << 29: the IWDG reset the board, 1 << 27: power-on, 1 << 26: the reset pin), and the receiver's errors the
- * USART reported (bytes lost to an overrun; framing, noise and parity errors) */
+/* RCC_CSR's reset flags at start-up (1 << 29: the IWDG reset the board, 1 << 27: power-on, 1 << 26: the reset pin)
+ * and what HELLO_ACK reports of them; the receiver's errors the USART reported (bytes lost to an overrun; framing,
+ * noise and parity errors), which STATUS reports */
 static volatile uint32_t reset_flags;
+static uint8_t reset_cause;
 static volatile uint32_t uart_overruns, uart_line_errors;
+/* Set by the fault handler before it spins (board_stop_drive), in RAM the start-up code leaves alone (a system reset
+ * keeps SRAM): the watchdog reset that follows is reported as a fault */
+#define FAULT_MARK 0xFA017ED5u
+__attribute__((section(".noinit"))) static volatile uint32_t fault_mark;
 static const fw_board_t board = {
     0u, /* device_id: from the MCU's unique id at start-up, see main() */
     BOARD_DEFAULT_RATE_HZ,
@@ -194,6 +199,18 @@ void hal_session_started(fw_hal_t *h, uint8_t new_session)
     (void)new_session;
 }
 
+uint8_t hal_reset_cause(fw_hal_t *h)
+{
+    (void)h;
+    return reset_cause;
+}
+
+void hal_uart_errors(fw_hal_t *h, uint32_t *overruns, uint32_t *line_errors)
+{
+    *overruns = uart_overruns + h->rx_overflows; /* lost in the USART, or to a full receive ring */
+    *line_errors = uart_line_errors;
+}
+
 /* ---- interrupts ------------------------------------------------------------------------------ */
 
 void TIM5_IRQHandler(void)
@@ -312,6 +329,7 @@ static void pin_mode(uint32_t port, uint32_t pin, uint32_t mode, uint32_t af)
  * driven by the GPIO (the timer's main output off too), direction low. Touches only what is clocked. */
 void board_stop_drive(void)
 {
+    fault_mark = FAULT_MARK;
     if (RCC_APB2ENR & RCC_APB2ENR_TIM1) {
         TIM_BDTR(PWM_TIM) &= ~TIM_BDTR_MOE; /* the output to its idle level, low (OSSI, OIS1 = 0) */
         TIM_CCR1(PWM_TIM) = 0u;
@@ -406,10 +424,27 @@ static void hardware_watchdog(void)
     IWDG_KR = 0xAAAAu;
 }
 
+/* HELLO_ACK's reset_cause from RCC_CSR's flags (RM0368 6.3.21; a power-on sets PINRSTF too) and the fault mark. */
+static uint8_t reset_cause_of(uint32_t flags, uint32_t mark)
+{
+    if (flags & (RCC_CSR_PORRSTF | RCC_CSR_BORRSTF)) {
+        return FP_RESET_POWER_ON;
+    }
+    if (flags & (RCC_CSR_IWDGRSTF | RCC_CSR_WWDGRSTF)) {
+        return mark == FAULT_MARK ? FP_RESET_FAULT : FP_RESET_WATCHDOG;
+    }
+    if (flags & RCC_CSR_SFTRSTF) {
+        return FP_RESET_SOFTWARE;
+    }
+    return (flags & RCC_CSR_PINRSTF) ? FP_RESET_PIN : FP_RESET_UNKNOWN;
+}
+
 int main(void)
 {
     reset_flags = RCC_CSR & RCC_CSR_RESET_FLAGS;
     RCC_CSR |= RCC_CSR_RMVF; /* the next reset's flags alone */
+    reset_cause = reset_cause_of(reset_flags, fault_mark);
+    fault_mark = 0u;
     hal.clock_source_hz = clock_84mhz();
     board_with_id = board;
     board_with_id.device_id = REG32(UID_BASE) ^ REG32(UID_BASE + 4u) ^ REG32(UID_BASE + 8u);

@@ -53,6 +53,14 @@ int16_t hal_adc_theta_dot(fw_hal_t *h) { return adc(h->x[5], PLANT_THETA_DOT_RAD
 void hal_actuator_write(fw_hal_t *h, int16_t c) { h->u = (float)c * (PLANT_FULL_SCALE / 32767.0f); }
 void hal_tick_rate(fw_hal_t *h, uint16_t rate_hz) { (void)h; SYST_RVR = QEMU_CPU_HZ / rate_hz - 1u; }
 
+/* qemu starts the image afresh every time; its UART (a pseudo-terminal) has no line to err on. */
+uint8_t hal_reset_cause(fw_hal_t *h) { (void)h; return FP_RESET_POWER_ON; }
+void hal_uart_errors(fw_hal_t *h, uint32_t *overruns, uint32_t *line_errors)
+{
+    (void)h;
+    *overruns = *line_errors = 0u;
+}
+
 /* A new host finds the pendulum put back near upright, as hil_mock does. */
 void hal_session_started(fw_hal_t *h, uint8_t new_session)
 {

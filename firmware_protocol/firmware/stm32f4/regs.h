@@ -19,6 +19,12 @@
 #define RCC_CSR REG32(RCC_BASE + 0x74u)
 #define RCC_CSR_RMVF (1u << 24)
 #define RCC_CSR_RESET_FLAGS 0xFE000000u
+#define RCC_CSR_BORRSTF (1u << 25)
+#define RCC_CSR_PINRSTF (1u << 26)
+#define RCC_CSR_PORRSTF (1u << 27)
+#define RCC_CSR_SFTRSTF (1u << 28)
+#define RCC_CSR_IWDGRSTF (1u << 29)
+#define RCC_CSR_WWDGRSTF (1u << 30)
 #define RCC_APB2ENR REG32(RCC_BASE + 0x44u)
 #define RCC_CR_HSION (1u << 0)
 #define RCC_CR_HSIRDY (1u << 1)
