@@ -32,7 +32,7 @@ from furuta_rt.model.rig import RigModel
 from furuta_rt.model.sensors import quantise
 from furuta_rt.recording import Recording
 from furuta_rt.sim.command_path import CommandPath
-from furuta_rt.sim.simulator import Simulator
+from furuta_rt.sim.compiled import fast_simulator
 
 # The encoder each rig shape reads θ with (rad per count) and the noise of its reading (rad): the QUBE's 2048-count
 # quadrature encoder; the macstepien rig's ODrive estimate (not on a count grid in its recordings: fine steps + noise).
@@ -132,7 +132,7 @@ def simulate(
     hanging = excitation in ("sine", "chirp", "step", "single_step", "swingup")
     rng = np.random.default_rng(seed)
     x0 = (math.pi + 0.02 * rng.standard_normal(), 0.0, 0.0, 0.0) if hanging else (0.04, 0.0, 0.0, 0.0)
-    sim = Simulator(model, rate, SUBSTEP_HZ, seed=seed, x0=x0)
+    sim = fast_simulator(model, rate, SUBSTEP_HZ, seed=seed, x0=x0)
     commands = CommandPath(sim, nominal.control.command_delay_ticks)
     q_th, q_ph = THETA_QUANTUM[shape], 2 * math.pi / nominal.sensors.encoder_counts_per_rev
     noise = THETA_NOISE[shape]

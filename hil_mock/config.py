@@ -19,7 +19,7 @@ A mock TOML file (all tables optional)::
     priority = "realtime"           # SCHED_FIFO for the device thread if permitted (else nice -10); or "normal"
     late_threshold_us = 250         # a tick starting later than this is counted late (default: period / 4)
     firmware = "c"                  # device logic: the microcontroller's C core built for this machine, or "python"
-    plant = "compiled"              # the plant in C (hil_mock/csrc/plant.c), or "python": the reference simulator
+    plant = "compiled"              # the plant in C (furuta_rt/sim/csrc/plant.c), or "python": the reference simulator
 
     [faults]
     corrupt_rate = 0.0              # per device→host byte: flip one random bit
@@ -68,7 +68,7 @@ class DeviceSettings(_Section):
     late_threshold_us: Annotated[float, Field(gt=0)] | None = None  # default: a quarter period
     firmware: Literal["python", "c", "board"] = "c"  # device logic: the C core (hil_mock.c_firmware),
     # hil_mock.firmware, or the flashed image on the register-level board model (hil_mock.board_model)
-    plant: Literal["compiled", "python"] = "compiled"  # hil_mock.compiled_plant (where it covers the model) or the
+    plant: Literal["compiled", "python"] = "compiled"  # furuta_rt.sim.compiled (where it covers the model) or the
     # reference simulator
 
 

@@ -2,7 +2,7 @@
 timer period. hil_mock.device drives it in real time over a pseudo-terminal.
 
 Behind it is the core simulator (furuta_rt.sim.simulator.Simulator, its plant integrated in C by
-hil_mock.compiled_plant where that covers the model); there is no physics here. The
+furuta_rt.sim.compiled where that covers the model); there is no physics here. The
 order of operations per tick is the one of furuta_rt.sim.closed_loop.run_closed_loop, so a run
 against the mock with seed s reproduces the simulation with seed s, up to the COMMAND's 16-bit
 quantisation:
@@ -61,8 +61,8 @@ from firmware_protocol import (
 from furuta_rt.config import RigConfig
 from furuta_rt.model.friction import Coulomb, CoulombStiction
 from furuta_rt.model.rig import RigModel
+from furuta_rt.sim.compiled import make_simulator
 from furuta_rt.sim.simulator import Simulator
-from hil_mock.compiled_plant import make_simulator
 from hil_mock.config import MAX_RATE_HZ, DeviceSettings
 
 FW_VERSION = (0, 1, 0)

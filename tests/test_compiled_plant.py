@@ -1,4 +1,4 @@
-"""hil_mock's compiled plant (hil_mock/csrc/plant.c) against the reference simulator, tick for tick.
+"""The compiled plant (furuta_rt/sim/csrc/plant.c) against the reference simulator, tick for tick.
 
 Both integrate the same substeps with the same IEEE-754 operations in the same order, so they must agree far below
 anything physical: the bound is 1e-12 (rad, rad/s, bristle m) at every 1 kHz tick — nine orders under one count
@@ -18,8 +18,8 @@ import pytest
 from furuta_rt.model.coupling import Coupling
 from furuta_rt.model.friction import Coulomb, CoulombStiction, JointFriction
 from furuta_rt.model.rig import RigModel
+from furuta_rt.sim.compiled import CompiledSimulator, make_simulator
 from furuta_rt.sim.simulator import Simulator
-from hil_mock.compiled_plant import CompiledSimulator, make_simulator
 from hil_mock.config import build_config
 
 SUBSTEP_HZ = 10_000
@@ -170,3 +170,29 @@ def test_one_reading_quantises_as_an_array_does() -> None:
     x = np.concatenate([np.linspace(-7.0, 7.0, 4001), (np.arange(-50, 50) + 0.5) * step, [0.0, -0.0, 1e-300]])
     for phase in (0.0, 0.25, -0.3):
         assert [count_of(float(v), step, phase) for v in x] == count_of(x, step, phase).tolist()
+
+
+def test_closed_loop_runs_the_compiled_plant_with_the_reference_recording() -> None:
+    """run_closed_loop (and so the suites' recordings) and diagnose's simulations start ``fast_simulator``: the
+    compiled plant where it covers the model, with the Python simulator's recording count for count (the true
+    states within the bound); a model plant.c does not cover runs on the reference."""
+    import numpy as np
+
+    from furuta_rt.config import load_rig
+    from furuta_rt.model.effects import effects_from_assignments
+    from furuta_rt.sim.closed_loop import run_closed_loop
+    from furuta_rt.sim.compiled import fast_simulator
+
+    rig = load_rig("thesis")
+    effects = effects_from_assignments(CASES["stick_slip"][1])
+    reference = run_closed_loop(rig, 2.0, effects=effects, seed=3, simulator=Simulator)
+    fast = run_closed_loop(rig, 2.0, effects=effects, seed=3)
+    for name in ("theta", "theta_dot", "phi", "u"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(reference, name))
+    for name in ("true_theta", "true_theta_dot", "true_phi", "true_phi_dot", "friction"):
+        assert np.max(np.abs(fast.extra[name] - reference.extra[name])) <= BOUND
+    assert np.ptp(reference.extra["friction"]) > 0.04  # the arm stuck and slid: both branches of plant.c ran
+    model = RigModel.from_config(rig, effects)
+    assert type(fast_simulator(model)) is CompiledSimulator
+    coupled = dataclasses.replace(model, coupling=Coupling(rotor_inertia=1e-5, stiffness=50.0, damping=0.02))
+    assert type(fast_simulator(coupled)) is Simulator

@@ -13,8 +13,8 @@ from furuta_rt.diagnose.regression.library import CANDIDATES
 from furuta_rt.diagnose.stages.lookalikes import EXPERIMENTS
 from furuta_rt.model.effects import ARM, EFFECT_TYPES, PEND, Effects, JointTorque, parse_effect_assignment
 from furuta_rt.model.rig import RigModel
+from furuta_rt.sim.compiled import make_simulator, unsupported
 from furuta_rt.sim.simulator import Simulator
-from hil_mock.compiled_plant import make_simulator, unsupported
 
 
 def test_every_registered_effect_is_a_config_field_an_assignment_and_a_consistent_entry() -> None:

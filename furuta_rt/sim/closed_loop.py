@@ -8,6 +8,7 @@ effect command_delay_ticks periods later (the protocol's one-period latency by d
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 
@@ -20,6 +21,7 @@ from furuta_rt.model.rig import RigModel
 from furuta_rt.model.sensors import Calibration
 from furuta_rt.recording import Recording
 from furuta_rt.sim.command_path import CommandPath
+from furuta_rt.sim.compiled import fast_simulator
 from furuta_rt.sim.simulator import Simulator
 
 
@@ -37,16 +39,19 @@ def run_closed_loop(
     host_calibration: Calibration | None = None,
     coupling: Coupling | None = None,
     excitation: Excitation | None = None,
+    simulator: Callable[..., Simulator] = fast_simulator,
 ) -> Recording:
     """Simulate ``duration`` s of balancing. ``reference``: optional arm-angle reference per tick
     (added to φ as u = L·(x − x_ref)), used to excite the loop. ``host_calibration``: the counts → SI conversion the
     host uses when it differs from the DAQ's (a sensor scale error; default: the rig's own). ``coupling``: a compliant
     rotor–arm coupling (furuta_rt.model.coupling; default none: eq. 4's rigid arm). ``excitation``: a designed
-    experiment's plan at the control rate (furuta_rt.experiment.plan), stepped by the controller as on the rig."""
+    experiment's plan at the control rate (furuta_rt.experiment.plan), stepped by the controller as on the rig.
+    ``simulator``: the plant (Simulator's constructor); by default the compiled plant where it covers the model
+    (furuta_rt.sim.compiled: the same substeps in C, the same recording), else the Python Simulator."""
     model = RigModel.from_config(rig, effects)
     if coupling is not None:
         model = dataclasses.replace(model, coupling=coupling)
-    sim = Simulator(model, rig.control.rate_hz, substep_hz, seed=seed, x0=x0)
+    sim = simulator(model, rig.control.rate_hz, substep_hz, seed=seed, x0=x0)
     ctrl = Controller.from_rig(rig, mode=mode, gains=gains)
     ctrl.excitation = excitation
     commands = CommandPath(sim, rig.control.command_delay_ticks)

@@ -15,7 +15,7 @@ from furuta_rt.controller.controller import Controller
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 from furuta_rt.sim.command_path import CommandPath
-from furuta_rt.sim.simulator import Simulator
+from furuta_rt.sim.compiled import fast_simulator
 
 
 @dataclass(frozen=True)
@@ -44,7 +44,7 @@ def simulate_swing_up(rig: RigConfig, duration: float, *, effects: Effects | Non
     hil_mock's push fault)."""
     rig = swing_up_rig(rig)
     model = RigModel.from_config(rig, effects)
-    sim = Simulator(model, rig.control.rate_hz, substep_hz, seed=seed, x0=(math.pi, 0.0, 0.0, 0.0))
+    sim = fast_simulator(model, rig.control.rate_hz, substep_hz, seed=seed, x0=(math.pi, 0.0, 0.0, 0.0))
     ctrl = Controller.from_rig(rig)
     ctrl.reset(0.0)
     commands = CommandPath(sim, rig.control.command_delay_ticks)

@@ -28,6 +28,7 @@ from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 from furuta_rt.recording import Recording
 from furuta_rt.sim.closed_loop import run_closed_loop
+from furuta_rt.sim.compiled import fast_simulator
 from furuta_rt.sim.simulator import Simulator
 from furuta_rt.stats import summary_stats
 
@@ -54,7 +55,7 @@ def start_simulator(model: RigModel, prep: Prepared, fine: States, k: int, rate:
     stick limit holds it)."""
     v = float(fine.phi_dot[k]) if phi_dot is None else phi_dot
     x0 = (float(fine.theta[k] - model.theta_offset), float(fine.theta_dot[k]), float(prep.phi[k]), v)
-    sim = Simulator(model, rate, substep_hz, seed=0, x0=x0)
+    sim = fast_simulator(model, rate, substep_hz, seed=0, x0=x0)  # compiled where it can be: the same trajectory
     if model.bessel is not None:  # the analog filter's own state: the measured θ_f, θ̇_f (lightly smoothed)
         sim.y = float(fine.smooth(prep.theta_f)[k])
         sim.y_dot = float(fine.smooth(prep.theta_dot_f)[k]) if prep.theta_dot_f is not None else float(fine.theta_dot[k])

@@ -1,16 +1,18 @@
-"""The core simulator's plant integrated in C (hil_mock/csrc/plant.c): hil_mock's device at ≥ 20× real time.
+"""The core simulator's plant integrated in C (furuta_rt/sim/csrc/plant.c): the same trajectory, several times sooner.
 
 ``CompiledSimulator`` is furuta_rt.sim.simulator.Simulator with ``advance`` run by plant.c — eq. 4, the arm's
 viscous, set-valued dry (stick/slip) or LuGre friction, the pendulum's viscous friction, the spring, the arm bias,
 the Bessel filter and the actuator's transport delay — substep for substep in the reference's order of operations.
 Everything else stays the reference's: the actuator's shaping (``Actuator.torque_terms``, once per command), the
-sensors (``sample``/``measure``: noise, ADC, encoder), the state attributes a fault writes (a push), the friction
-step. The Python simulator remains the one definition; tests/test_compiled_plant.py holds the two together tick for
-tick. Why C and not numpy: the work is a 10 kHz scalar recurrence (each substep needs the last), which numpy cannot
-vectorise, and C builds with the compiler and cache the firmware core already uses (firmware_protocol.hostbuild).
+sensors (``sample``/``measure``: noise, ADC, encoder), the state attributes a caller writes (a fault's push, a
+teacher-forced pendulum), the friction step. The Python simulator remains the one definition;
+tests/test_compiled_plant.py holds the two together tick for tick. Why C and not numpy: the work is a 10 kHz scalar
+recurrence (each substep needs the last), which numpy cannot vectorise, and C builds with the compiler and cache
+the firmware core already uses (firmware_protocol.hostbuild).
 
-A model with an effect plant.c does not cover (compliant coupling, smooth-Coulomb or pendulum dry friction) runs
-on the Python simulator: ``make_simulator`` decides.
+A model with an effect plant.c does not cover (compliant coupling, smooth-Coulomb or pendulum dry friction, a
+torque-law effect) runs on the Python simulator: ``make_simulator`` decides; ``fast_simulator`` also falls back
+where no C compiler is installed (hil_mock's device needs one anyway; a simulation or a diagnosis does not).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import ctypes
 import functools
 from pathlib import Path
 
-from firmware_protocol.hostbuild import host_library
+from firmware_protocol.hostbuild import BuildError, host_library
 from furuta_rt.model.friction import JointFriction
 from furuta_rt.model.rig import RigModel
 from furuta_rt.sim.simulator import Simulator
@@ -46,7 +48,7 @@ def load_library() -> ctypes.CDLL:
     lib = ctypes.CDLL(str(host_library(sources=(SOURCE,), headers=(), name="libfuruta_plant", libs=("-lm",))))
     lib.plant_params_size.restype = ctypes.c_uint
     if lib.plant_params_size() != ctypes.sizeof(PlantParams):
-        raise RuntimeError("hil_mock/csrc/plant.c: plant_params_t and compiled_plant.PlantParams differ in size")
+        raise RuntimeError("furuta_rt/sim/csrc/plant.c: plant_params_t and compiled.PlantParams differ in size")
     dp = ctypes.POINTER(ctypes.c_double)
     lib.plant_advance.argtypes = (ctypes.POINTER(PlantParams), dp, dp, ctypes.c_int, ctypes.POINTER(ctypes.c_int),
                                   ctypes.c_double, ctypes.c_double, ctypes.c_double, ctypes.c_long)
@@ -144,3 +146,18 @@ def make_simulator(model: RigModel, *args: object, compiled: bool = True, **kwar
     if compiled and unsupported(model) is None:
         return CompiledSimulator(model, *args, **kwargs)
     return Simulator(model, *args, **kwargs)  # type: ignore[arg-type]
+
+
+@functools.cache
+def _plant_builds() -> bool:
+    try:
+        load_library()
+    except BuildError:
+        return False
+    return True
+
+
+def fast_simulator(model: RigModel, *args: object, **kwargs: object) -> Simulator:
+    """A Simulator for ``model`` (Simulator's constructor arguments): compiled where plant.c covers the model and
+    builds on this machine, else the Python reference."""
+    return make_simulator(model, *args, compiled=_plant_builds(), **kwargs)

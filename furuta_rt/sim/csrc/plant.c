@@ -1,9 +1,10 @@
-/* The plant of furuta_rt.sim.simulator.Simulator, substep for substep, compiled for hil_mock.
+/* The plant of furuta_rt.sim.simulator.Simulator, substep for substep, compiled (hil_mock's device, the suites' recordings,
+ * diagnose's stick windows).
  *
  * Reference: furuta_rt/sim/simulator.py (Simulator._substep, _rhs, _rhs_stuck, _held_torque, _integrate_stuck),
  * furuta_rt/model/plant.py (eq. 4: accelerations, arm_compliance, inverse_dynamics),
  * furuta_rt/model/friction.py (LuGre, eq. 3: advance, torque). The operations are written in the order of the
- * Python reference so that both round alike; hil_mock/compiled_plant.py checks the model is one this file covers
+ * Python reference so that both round alike; furuta_rt/sim/compiled.py checks the model is one this file covers
  * and tests/test_compiled_plant.py holds the two to agreement tick for tick.
  *
  * State s[]: theta, theta_dot, phi, phi_dot, y, y_dot (Bessel filter), z (LuGre bristles), arm_friction_torque,
