@@ -9,7 +9,7 @@ noise, 10 kHz physics: finer than the design's 2 kHz prediction), and `diagnose`
 
 ``held_out``: cases not run while the joint fit, the calibrated score and the hanging family were built. Built on
 (in-sample): input gain 0.8 ↔ arm inertia, balancing and hanging, and their nulls. A ``hanging`` case's experiment is
-an open-loop plan about θ = π (simulated: `run --experiment` runs balancing plans only).
+an open-loop plan about θ = π (`run --experiment` runs it in the supervisor's open_loop state).
 """
 
 from __future__ import annotations

@@ -1,22 +1,37 @@
 """Designed experiments, the run: the plan format, its tick-by-tick excitation through the one ``Controller.update``,
 and `furuta-rt run --experiment` against hil_mock over a real pty (segments as events in the MCAP, read back with
-the official ``mcap`` reader; a fault during an experiment trips and zeroes first at the device)."""
+the official ``mcap`` reader; a fault during an experiment trips and zeroes first at the device), balancing and
+hanging (open loop about θ = π: the supervisor's open_loop state)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
-from test_reliability_harness import DaemonProcess, MockProcess, read_summary, start_daemon, traceback_free
+from test_reliability_harness import (
+    DaemonProcess,
+    MockProcess,
+    MockRecord,
+    read_summary,
+    start_daemon,
+    traceback_free,
+    write_test_rig,
+)
 
+from firmware_protocol import COMMAND_FULL_SCALE, CommandFlags, StatusFlags
 from furuta_rt.config import load_rig
+from furuta_rt.controller.controller import Controller, Measurement
 from furuta_rt.errors import UserError
+from furuta_rt.experiment import hanging
 from furuta_rt.experiment.plan import (
     EVENT_PREFIX,
     Excitation,
+    Plan,
+    Segment,
     check_plan_limits,
     load_plan,
     plan_from_dict,
@@ -27,6 +42,7 @@ from furuta_rt.experiment.plan import (
 from furuta_rt.io import log_schema as ls
 from furuta_rt.io.mcap_read import read_log
 from furuta_rt.replay.core import replay_log
+from furuta_rt.runtime.supervisor import State, Supervisor, SupervisorLimits
 from furuta_rt.sim.closed_loop import run_closed_loop
 
 RATE = 500
@@ -234,14 +250,210 @@ def test_run_refuses_a_plan_beyond_the_limits_before_starting(tmp_path: Path, ca
     assert not (tmp_path / "run.mcap").exists()
 
 
-def test_run_refuses_a_hanging_plan_before_starting(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    """A hanging plan (open loop) is designed and simulated, not run: exit 2, one line naming why, nothing started."""
+def test_run_refuses_a_hanging_plan_with_a_swing_up(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """A hanging plan starts from the pendulum hanging at rest, a swing-up leaves it upright: exit 2, one line naming
+    why, nothing started."""
     from furuta_rt.cli import main
 
-    plan = write_plan(tmp_path, 'mode = "hanging"\n[[segment]]\nkind = "chirp"\namplitude = 0.03\nf0 = 0.4\nf1 = 1.8\n'
-                      'duration = 2\n')
-    assert load_plan(plan).mode == "hanging"
-    rc = main(["run", "--mock", "--experiment", str(plan), "--no-tui", "--log", str(tmp_path / "run.mcap")])
+    plan = write_plan(tmp_path, HANGING_PLAN)
+    rc = main(["run", "--mock", "--swing-up", "--experiment", str(plan), "--no-tui", "--log", str(tmp_path / "run.mcap")])
     err = capsys.readouterr().err.strip()
-    assert rc == 2 and "runs plans while balancing" in err and len(err.splitlines()) == 1, err
+    assert rc == 2 and "cannot follow a swing-up" in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "run.mcap").exists()
+
+
+# ------------------------------------------------------------------ hanging: open loop about θ = π
+HANGING_PLAN = """
+mode = "hanging"
+settle_s = 0.5
+
+[[segment]]
+kind = "chirp"
+amplitude = 0.03
+f0 = 0.4
+f1 = 1.6
+duration = 3.0
+
+[[segment]]
+kind = "hold"
+duration = 0.5
+"""
+HANGING_LIMITS = SupervisorLimits(theta_limit=0.5, phi_limit=1.0, arm_theta=0.1, settle_ticks=5, hanging=True,
+                                  swing_limit=1.0)
+
+
+def _steps(sup: Supervisor, thetas: list[float], phi: float = 0.0, status: int = 0) -> list[str]:
+    return [sup.step(k, th, phi, status, False)[0].label for k, th in enumerate(thetas)]
+
+
+def test_hanging_supervisor_arms_about_pi_and_runs_open_loop() -> None:
+    """Arms within arm_theta of θ = π read either side of the ±π wrap, opens the loop after settle_ticks, disarms on
+    leaving the window; upright does not arm it (and θ = π does not arm a balancing supervisor)."""
+    sup = Supervisor(HANGING_LIMITS)
+    assert _steps(sup, [0.0, 0.05, 2.9]) == ["idle"] * 3  # upright is not where a hanging experiment starts
+    states = _steps(sup, [-3.10, 3.12, -3.13, 3.139, -3.14, 3.141, 3.0])
+    assert states == ["armed"] * 5 + ["open_loop", "open_loop"], states
+    assert "|θ − π| = 0.042 rad" in sup.transitions[0].message
+    sup2 = Supervisor(HANGING_LIMITS)
+    assert _steps(sup2, [3.1, 3.1, 2.9]) == ["armed", "armed", "idle"]
+    assert _steps(Supervisor(dataclasses.replace(HANGING_LIMITS, hanging=False)), [math.pi, -3.1]) == ["idle", "idle"]
+    assert "let the pendulum hang still" in Supervisor(HANGING_LIMITS).why_not_armed(0.3, 0.0, 0)
+
+
+@pytest.mark.parametrize(("theta", "phi", "status", "reason"), [
+    (math.pi - 1.05, 0.0, 0, "theta_limit"),  # swung beyond the hanging limit (1 rad) one way
+    (-math.pi + 1.05, 0.0, 0, "theta_limit"),  # ... and the other, across the wrap
+    (math.pi, 1.01, 0, "phi_limit"),
+    (math.pi, 0.0, int(StatusFlags.WATCHDOG_TRIPPED), "device_fault"),
+    (math.pi, 0.0, int(StatusFlags.ENCODER_ERROR), "sensor_fault"),
+    (math.nan, 0.0, 0, "nonfinite"),
+])
+def test_hanging_supervisor_trips_open_loop(theta: float, phi: float, status: int, reason: str) -> None:
+    sup = Supervisor(HANGING_LIMITS)
+    assert _steps(sup, [math.pi] * 6)[-1] == "open_loop"
+    assert _steps(sup, [math.pi - 0.95, -math.pi + 0.95]) == ["open_loop"] * 2  # within 1 rad of hanging: runs on
+    state, _ = sup.step(99, theta, phi, status, False)
+    assert state is State.TRIPPED and sup.reason == reason, sup.transitions[-1]
+    assert sup.step(100, math.pi, 0.0, 0, False)[0] is State.TRIPPED  # latched
+
+
+def test_open_loop_controller_commands_the_plans_torque_saturated() -> None:
+    """A hanging plan through Controller.update: u is the plan's torque tick for tick (zero while settling), no
+    feedback (θ and φ do not change it), clipped at the actuator limit and flagged saturated."""
+    import tomllib
+
+    rig = load_rig("thesis")
+    plan = plan_from_dict(tomllib.loads(HANGING_PLAN))
+    ctrl = Controller.from_rig(rig)
+    ctrl.excitation = Excitation(plan, RATE)
+    rng = np.random.default_rng(1)
+    us = [ctrl.update(Measurement(k / RATE, math.pi + 0.1 * rng.standard_normal(), rng.standard_normal(),
+                                  0.2 * rng.standard_normal())) for k in range(ctrl.excitation.ticks)]
+    _, _, torque = reference_and_torque(plan, RATE)
+    assert [o.u for o in us] == [0.0] * 250 + torque.tolist()
+    assert not any(o.saturated for o in us) and all(o.u_comp == 0.0 for o in us)
+    loud = Plan((Segment("dither", 1.0, {"amplitude": 3.0, "frequency": 2.0}),), "hanging", 0.0)
+    ctrl = Controller.from_rig(rig)
+    ctrl.excitation = Excitation(loud, RATE)
+    out = [ctrl.update(Measurement(k / RATE, math.pi, 0.0, 0.0)) for k in range(RATE)]
+    assert max(abs(o.u) for o in out) == rig.actuator.limit and any(o.saturated for o in out)
+    assert all(abs(o.u) <= rig.actuator.limit for o in out)
+
+
+def _device_commands(rec: MockRecord) -> dict[int, tuple[int, int]]:
+    """seq → (counts, flags) of the COMMANDs the device accepted (its own record)."""
+    return {c[3]: (c[4], c[5]) for c, ok in zip(rec.commands, rec.accepted, strict=True) if ok}
+
+
+def _counts(u: np.ndarray, full_scale: float) -> np.ndarray:
+    return np.clip(np.round(u / full_scale * COMMAND_FULL_SCALE), -COMMAND_FULL_SCALE, COMMAND_FULL_SCALE).astype(int)
+
+
+@pytest.mark.hil
+def test_run_hanging_experiment_over_the_pty(tmp_path: Path) -> None:
+    """`furuta-rt run --experiment hanging.toml` against hil_mock started hanging, lockstep-paced: arms about π,
+    runs the plan open loop (exit 0, ended by the plan), every segment an event at its tick; the device received
+    exactly the plan's torque, tick for tick, with ENABLE, and nothing before arming; the pendulum swung; the log
+    replays bit for bit."""
+    plan_path = write_plan(tmp_path, HANGING_PLAN)
+    mock = MockProcess(tmp_path, ["--start", "hanging", "--pacing", "lockstep"])
+    d = start_daemon(tmp_path, mock.port, duration=None, extra=["--experiment", str(plan_path)])
+    rc = d.wait(timeout=120)
+    rec = mock.stop()
+    assert rc == 0 and traceback_free(d.stderr), d.stderr
+    s = read_summary(tmp_path)
+    assert s["end"] == "experiment" and s["open_loop_ticks"] > 0 and s["balancing_ticks"] == 0, s
+    rec.assert_ends_safe()
+    log = read_log(tmp_path / "run.mcap")
+    plan = plan_of_log(log.metadata)
+    assert plan == load_plan(plan_path)
+    t = log.ticks
+    spans = segments_in_log(plan, t["state"], t["t"], RATE)
+    assert [sp.label for sp in spans] == ["1/2 chirp", "2/2 hold"]
+    marks = [e["message"] for e in log.events if e["message"].startswith(EVENT_PREFIX)]
+    assert [m.split(" start")[0] for m in marks] == [f"{EVENT_PREFIX} segment 1/2 chirp",
+                                                      f"{EVENT_PREFIX} segment 2/2 hold", f"{EVENT_PREFIX} end"]
+    opened = np.flatnonzero(t["state"] == "open_loop")
+    assert len(opened) and set(t["state"][: opened[0]]) <= {"idle", "armed"}
+    # the device side: the plan's torque in counts, with ENABLE, answering each open-loop SAMPLE; zero before
+    _, _, torque = reference_and_torque(plan, RATE)
+    full_scale = float(log.metadata["device"]["actuator_full_scale"])
+    got = _device_commands(rec)
+    plan_ticks = opened[: 250 + len(torque)]
+    want = _counts(np.concatenate([np.zeros(250), torque]), full_scale)
+    assert [got[int(q)] for q in t["seq"][plan_ticks]] == [(int(c), int(CommandFlags.ENABLE)) for c in want]
+    assert all(got[int(q)] == (0, 0) for q in t["seq"][: opened[0]] if int(q) in got)
+    assert 0.01 < hanging.swing(t["theta"][opened]) < 1.0 and np.abs(t["phi"]).max() > 0.05
+    assert replay_log(log).exact
+
+
+@pytest.mark.hil
+@pytest.mark.parametrize("fault", ["phi_limit", "device_fault"])
+def test_fault_during_a_hanging_experiment_zeroes_at_the_device_first(tmp_path: Path, fault: str) -> None:
+    """A fault during the open-loop chirp: the arm beyond a |φ| limit of 0.15 rad, or the device's own watchdog
+    (host→device bytes lost for 60 ms: the mock's deaf fault, WATCHDOG_TRIPPED in the SAMPLE). The run trips (exit 1,
+    that reason); at the device the output is zero from the tripping tick on — the COMMAND answering the SAMPLE
+    that tripped is u = 0 without ENABLE, every later one too, then a STOP (on its watchdog the device zeroed itself
+    before the SAMPLE that told the host) — and the explanation is logged for that same SAMPLE."""
+    plan_path = write_plan(tmp_path, HANGING_PLAN)
+    if fault == "phi_limit":
+        mock = MockProcess(tmp_path, ["--start", "hanging", "--pacing", "lockstep"])
+        rig, watchdog = write_test_rig(tmp_path, phi_limit=0.15), 500
+    else:
+        mock = MockProcess(tmp_path, ["--start", "hanging", "--pacing", "lockstep", "--fault", "deaf@2.0:60ms"])
+        rig, watchdog = write_test_rig(tmp_path), 20
+    d = start_daemon(tmp_path, mock.port, duration=None, watchdog_ms=watchdog, rig=rig,
+                     extra=["--experiment", str(plan_path)])
+    rc = d.wait(timeout=120)
+    rec = mock.stop()
+    assert rc == 1 and traceback_free(d.stderr), d.stderr
+    s = read_summary(tmp_path)
+    assert s["trip_reason"] == fault, s
+    log = read_log(tmp_path / "run.mcap")
+    trip = next(e["message"] for e in log.events if "open_loop → tripped" in e["message"])
+    k = int(trip.rsplit("(seq ", 1)[1].rstrip(")"))
+    assert int(log.ticks["seq"][-1]) == k  # the tripping tick is the log's last
+    got = _device_commands(rec)
+    assert all(v == (0, 0) for q, v in got.items() if q >= k), {q: v for q, v in got.items() if q >= k}
+    assert any(v[0] != 0 for q, v in got.items() if q < k)  # the plan did drive the arm before
+    assert rec.final_output == 0.0
+    if fault == "phi_limit":
+        assert "|φ| = " in trip and got[k] == (0, 0), (trip, got.get(k))  # the trip tick's own answer: u = 0
+        assert rec.stops and rec.stops[-1][0] >= max(c[0] for c in rec.commands)  # then STOP
+    else:  # the device zeroed itself on its watchdog before the SAMPLE that told the host (its STOP may be lost: deaf)
+        assert "device reports WATCHDOG_TRIPPED" in trip and rec.stats["watchdog_trips"] >= 1, (trip, rec.stats)
+        zeroed = next(dev_ns for _, dev_ns, u in reversed(rec.outputs) if u == 0.0)
+        assert all(u == 0.0 for _, dev_ns, u in rec.outputs if dev_ns >= zeroed)
+        assert zeroed <= round(float(log.ticks["t"][-1]) * 1e9), (zeroed, log.ticks["t"][-1])
+    marks = [e["message"] for e in log.events if e["message"].startswith(EVENT_PREFIX)]
+    assert marks and f"{EVENT_PREFIX} end" not in marks
+
+
+@pytest.mark.hil
+def test_hanging_design_family_worst_case_stays_within_limits_over_the_pty(tmp_path: Path) -> None:
+    """The design's hanging family's largest excitation (a chirp of 3 % of the |u| limit across 0.5–2× the
+    natural frequency, here for 20 s: the one driving the arm furthest) run over the pty on the nominal mock:
+    no trip, and the device-side peaks — |u| the device received, |φ| and |θ − π| it reported — stay within the
+    rig's limits and within 15 % of what hanging.simulate predicts for the plan (the prediction the design's limit
+    check uses, so a plan design accepts is one the rig accepts)."""
+    rig = load_rig("thesis")
+    worst = hanging.candidate_plans(rig, 20.0, settle_s=0.5)[6]
+    assert worst.segments[0].kind == "chirp" and worst.segments[0].params["amplitude"] == 0.03 * rig.actuator.limit
+    plan_path = tmp_path / "worst.toml"
+    plan_path.write_text(worst.to_toml())
+    predicted = hanging.simulate(rig, {}, worst, 0, substep_hz=2000.0, noise=False)
+    mock = MockProcess(tmp_path, ["--start", "hanging", "--pacing", "lockstep"])
+    d = start_daemon(tmp_path, mock.port, duration=None, extra=["--experiment", str(plan_path)])
+    rc = d.wait(timeout=300)
+    rec = mock.stop()
+    assert rc == 0 and traceback_free(d.stderr), d.stderr
+    log = read_log(tmp_path / "run.mcap")
+    t = log.ticks
+    opened = t["state"] == "open_loop"
+    full_scale = float(log.metadata["device"]["actuator_full_scale"])
+    u_peak = max(abs(c[4]) for c in rec.commands) / COMMAND_FULL_SCALE * full_scale
+    phi_peak, swing_peak = float(np.abs(t["phi"][opened]).max()), hanging.swing(t["theta"][opened])
+    assert u_peak <= 0.8 * rig.actuator.limit and phi_peak < rig.safety.phi_limit and swing_peak < hanging.SWING_LIMIT
+    assert u_peak == pytest.approx(float(np.abs(predicted.u).max()), rel=1e-3)
+    assert phi_peak == pytest.approx(float(np.abs(predicted.phi).max()), rel=0.15)
+    assert swing_peak == pytest.approx(hanging.swing(predicted.theta), rel=0.15)

@@ -26,7 +26,7 @@ def balancing() -> Supervisor:
 
 
 def test_state_names_are_the_logged_enum() -> None:
-    assert STATE_NAMES == ("idle", "armed", "balancing", "tripped", "calibrating", "swinging_up")
+    assert STATE_NAMES == ("idle", "armed", "balancing", "tripped", "calibrating", "swinging_up", "open_loop")
     assert list(STATE_NAMES) == TICK_FIELDS["state"]["enum"]
 
 

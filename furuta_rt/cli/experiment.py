@@ -46,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--hanging", action="store_true", help="design an open-loop plan with the pendulum hanging (torque "
                    "chirps and dithers near its natural frequency: the pendulum's reaction on the arm, which tells an "
                    "input gain from an arm inertia, is far larger than while balancing); --max-theta is then |θ − π| "
-                   "(default 1 rad). Simulated, not run by `run --experiment`")
+                   "(default 1 rad); `run --experiment` runs it open loop from the pendulum hanging at rest")
     d.set_defaults(func=run_design)
 
 
@@ -112,10 +112,7 @@ def run_design(args: argparse.Namespace) -> int:
         print(f"warning: expected {best.test} {best.separation:.1f} is below {best.threshold:g}: this plan is not "
               f"expected to tell them "
               f"apart; a budget of about {need:.0f} s (t grows as the square root of the length) or looser limits")
-    if args.hanging:
-        print("next: run the plan's torque open loop with the pendulum hanging (this version's `run --experiment` runs "
-              "balancing plans only), then furuta-rt diagnose RUN.mcap its-recording (the joint fit of both)")
-    else:
-        print(f"next: furuta-rt run --port DEV --experiment {args.output} --log experiment.mcap, then "
-              "furuta-rt diagnose RUN.mcap experiment.mcap (the joint fit of both)")
+    hang = " with the pendulum hanging at rest (open loop)" if args.hanging else ""
+    print(f"next: furuta-rt run --port DEV --experiment {args.output} --log experiment.mcap{hang}, then "
+          "furuta-rt diagnose RUN.mcap experiment.mcap (the joint fit of both)")
     return 0

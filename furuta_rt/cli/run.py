@@ -4,6 +4,7 @@
     furuta-rt run --port /dev/ttyACM0 --log run.mcap   the rig
     furuta-rt run --mock --swing-up                    calibrate hanging, swing up, catch and balance
     furuta-rt run --mock --experiment plan.toml        balance and run a designed experiment (ends with the plan)
+                                                       (a hanging plan: open loop, the pendulum hanging)
 
 Exit codes: 0 duration reached or operator stop (SIGINT, SIGQUIT, SIGTERM, SIGHUP: u = 0 and STOP sent
 first, log closed, summary printed); 1 the safety supervisor tripped (reason printed); 2 user error (one
@@ -18,6 +19,7 @@ import argparse
 import math
 import sys
 from pathlib import Path
+from typing import Any
 
 from furuta_rt.cli._common import add_config_argument, add_force_argument, parse_gains, rig_from_args
 from furuta_rt.config import COMP_MODES, RigConfig
@@ -52,9 +54,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--swing-up", action="store_true", help="start from the pendulum hanging at rest: calibrate θ's zero "
                    "(~1 s still), swing up by energy control, catch and balance; a fall swings up again (the rig's "
                    "swing_up.on_fall); with --mock the mock starts hanging")
-    p.add_argument("--experiment", metavar="PLAN.toml", help="run a designed experiment while balancing (arm-reference "
-                   "steps, ramps, sweeps; chirps and dithers added to u; `furuta-rt experiment design` writes one): "
-                   "its segments are logged as events, the run ends when the plan does")
+    p.add_argument("--experiment", metavar="PLAN.toml", help="run a designed experiment (`furuta-rt experiment design` "
+                   "writes one): while balancing (arm-reference steps, ramps, sweeps; chirps and dithers added to u) "
+                   "or, for a hanging plan, open loop with the pendulum hanging (its chirps and dithers are the whole "
+                   "command; trips beyond |θ − π| = 1 rad; with --mock the mock starts hanging); its segments are "
+                   "logged as events, the run ends when the plan does")
     p.add_argument("--comp", choices=COMP_MODES, help="friction compensation (default: the config's compensation.mode); "
                    "adaptive: Coulomb compensation whose level is estimated online while balancing")
     p.add_argument("--comp-from", metavar="REPORT.json", help="compensate the arm friction that `furuta-rt diagnose "
@@ -114,15 +118,20 @@ def effective_rig(rig: RigConfig, rate: int | None, mode: str | None, gains: lis
     return rig.model_copy(update={"control": control, "compensation": comp, "swing_up": up})
 
 
+def check_reads_hanging(rig: RigConfig, flag: str, margin: float) -> None:
+    """θ's sensor reads the pendulum hanging (π, ± ``margin``); else one line naming the key."""
+    s = rig.sensors
+    reach = 32767 * s.theta_rad_per_count
+    if not s.theta_wraps and reach < math.pi + margin:
+        raise UserError(f"{flag}: rig '{rig.name}' reads θ only up to ±{reach:.3f} rad (sensors.theta_wraps = false) "
+                        "and the pendulum hangs at π; set sensors.theta_wraps = true if θ's sensor reads the full turn")
+
+
 def check_swing_up(rig: RigConfig) -> None:
     """A swing-up needs θ read through hanging (π) and a consistent catch/fall; else one line naming the key."""
     from furuta_rt.controller.swingup import SwingUpDesign
 
-    s = rig.sensors
-    reach = 32767 * s.theta_rad_per_count
-    if not s.theta_wraps and reach < math.pi + rig.swing_up.hanging_tolerance:
-        raise UserError(f"--swing-up: rig '{rig.name}' reads θ only up to ±{reach:.3f} rad (sensors.theta_wraps = false) "
-                        "and the pendulum hangs at π; set sensors.theta_wraps = true if θ's sensor reads the full turn")
+    check_reads_hanging(rig, "--swing-up", rig.swing_up.hanging_tolerance)
     try:
         SwingUpDesign.from_rig(rig)
     except ValueError as err:
@@ -134,7 +143,8 @@ def mock_arguments(args: argparse.Namespace, rig_source: str, rate: int, watchdo
     if args.mock_initial_theta is not None:
         out += ["--initial-theta", repr(args.mock_initial_theta)]
     else:
-        out += ["--start", "hanging"] if args.swing_up else ["--initial-theta", "0.05"]
+        hanging = args.swing_up or getattr(args, "hanging_experiment", False)
+        out += ["--start", "hanging"] if hanging else ["--initial-theta", "0.05"]
     for e in args.mock_effect:
         out += ["--effect", e]
     for f in args.mock_fault:
@@ -211,6 +221,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.mock:
         max_overruns = max(max_overruns, math.ceil(MOCK_TIMEOUT_MS / period_ms))
     plan = _experiment_plan(args, rig, rate)
+    args.hanging_experiment = plan is not None and plan.mode == "hanging"  # the mock starts hanging (mock_arguments)
     rig_source = args.config or "thesis"
     opts = RunOptions(
         rig=rig,
@@ -240,26 +251,32 @@ def run(args: argparse.Namespace) -> int:
     return run_daemon(opts)
 
 
-def _experiment_plan(args: argparse.Namespace, rig: RigConfig, rate: int) -> object | None:
-    """--experiment's plan, checked against the rig's |u| and |φ| limits and --duration (one line if not)."""
+def _experiment_plan(args: argparse.Namespace, rig: RigConfig, rate: int) -> Any:
+    """--experiment's plan, checked against the rig's |u| and |φ| limits and --duration (one line if not); a hanging
+    plan also against --swing-up (the two start differently) and θ's sensor (it must read π)."""
     if not args.experiment:
         return None
+    from furuta_rt.experiment.hanging import SWING_LIMIT
     from furuta_rt.experiment.plan import check_plan_limits, load_plan
 
     plan = load_plan(args.experiment)
-    if plan.mode != "balancing":
-        raise UserError(f"--experiment {args.experiment}: a {plan.mode} plan (open loop) is designed and simulated by "
-                        "`furuta-rt experiment design --hanging`, not run by this version: `run --experiment` runs "
-                        "plans while balancing")
+    hanging = plan.mode == "hanging"
+    if hanging and rig.swing_up.enabled:
+        raise UserError(f"--experiment {args.experiment}: a hanging plan runs open loop from the pendulum hanging at "
+                        "rest; it cannot follow a swing-up (leave out --swing-up, or set swing_up.enabled = false)")
+    if hanging:
+        check_reads_hanging(rig, f"--experiment {args.experiment} (hanging)", SWING_LIMIT)
     try:
         check_plan_limits(plan, u_limit=rig.actuator.limit, phi_limit=rig.safety.phi_limit)
     except UserError as err:
         raise UserError(f"--experiment {args.experiment}: {err}") from None
     need = plan.settle_s + plan.duration
+    how = "hanging, open loop" if hanging else "of balancing"
     if args.duration is not None and args.duration < need:
         raise UserError(f"--duration {args.duration:g} s is shorter than the plan {args.experiment} "
-                        f"({need:.3g} s of balancing); leave --duration out to run until the plan ends")
+                        f"({need:.3g} s {how}); leave --duration out to run until the plan ends")
     lines = "; ".join(plan.describe())
-    print(f"furuta-rt: experiment {args.experiment}: {need:.3g} s of balancing at {rate} Hz: "
-          f"settle {plan.settle_s:g} s; {lines}", file=sys.stderr, flush=True)
+    limit = f"; trips beyond |θ − π| = {SWING_LIMIT:g} rad" if hanging else ""
+    print(f"furuta-rt: experiment {args.experiment}: {need:.3g} s {how} at {rate} Hz: "
+          f"settle {plan.settle_s:g} s; {lines}{limit}", file=sys.stderr, flush=True)
     return plan

@@ -16,6 +16,8 @@ observer then sees the gravity coupling at θ as sin θ cos θ (θ near upright,
 
 With a designed experiment (``excitation``, furuta_rt.experiment.plan) the same ``update`` balances about the
 plan's arm reference and adds its torque to u_lin: u_lin = L·[θ, θ̇, φ − φ_r − φ_e, φ̂̇ − φ̇_r − φ̇_e] + u_e.
+A hanging plan (``excitation.open_loop``) has no feedback: u = sat(u_e), the observer tracking φ̂̇ with the gravity
+coupling sin θ cos θ (exact about hanging, as with a swing-up).
 
 Everything is scalar Python on floats: no allocation, no numpy on the hot path (the swing-up's energy aside).
 """
@@ -187,12 +189,34 @@ class Controller:
             self.swinging = True
 
     def _observer_theta(self, theta: float) -> float:
-        """θ as the observer's gravity coupling sees it: θ balancing, sin θ cos θ with a swing-up (eq. 4's term)."""
-        return theta if self.swing_up is None else math.sin(theta) * math.cos(theta)
+        """θ as the observer's gravity coupling sees it: θ balancing, sin θ cos θ with a swing-up or a hanging
+        experiment (eq. 4's term)."""
+        exc = self.excitation
+        if self.swing_up is None and (exc is None or not exc.open_loop):
+            return theta
+        return math.sin(theta) * math.cos(theta)
+
+    def _open_loop(self, m: Measurement, exc: Excitation) -> ControlOutput:
+        """A hanging experiment's tick: the plan's torque, saturated at the actuator limit, no feedback."""
+        phi_dot = self.observer.correct(m.phi)
+        u = exc.step()[2]
+        lim = self.u_limit
+        saturated = lim is not None and (u > lim or u < -lim)
+        if saturated:
+            u = lim if u > 0 else -lim  # type: ignore[operator]
+        if self._delay:
+            self._pending.append(u)
+            applied = self._pending.popleft()
+        else:
+            applied = u
+        self.observer.predict(math.sin(m.theta) * math.cos(m.theta), applied)
+        return _new_output(ControlOutput, (u, u, 0.0, phi_dot, saturated, False))
 
     def update(self, m: Measurement) -> ControlOutput:
         if not self._started:
             self.reset(m.phi)
+        if self.excitation is not None and self.excitation.open_loop:
+            return self._open_loop(m, self.excitation)
         obs = self.observer
         su = self.swing_up
         if su is not None:

@@ -40,6 +40,11 @@ A plan (TOML) is a list of segments run one after another once the pendulum has 
     kind = "hold"           # reference held, nothing added
     duration = 2.0
 
+A hanging plan (``mode = "hanging"``, `experiment design --hanging`) runs open loop with the pendulum hanging: the
+supervisor arms within arm_theta of θ = π, ``settle_s`` passes at u = 0, then the chirp, dither and hold segments'
+torque is the whole command (no balancing, no arm reference); it trips beyond |θ − π| = SWING_LIMIT
+(furuta_rt.experiment.hanging) as balancing trips beyond |θ|.
+
 The reference segments (step, ramp, sweep, hold) also take ``dither`` (amplitude, u units) and ``dither_hz``: a
 dither on top of the motion (a slow sweep with a dither tells a dead band from dry friction). Amplitudes are in the
 actuator's command units (N m for a torque actuator, V for a DC motor).
@@ -84,11 +89,12 @@ class Segment:
     duration: float
     params: dict[str, float] = field(default_factory=dict)
 
-    def describe(self) -> str:
+    def describe(self, hanging: bool = False) -> str:
+        """The segment in words (``hanging``: of an open-loop plan, where a hold is no torque)."""
         p = self.params
         dither = f" + dither {p['dither']:g} at {p.get('dither_hz', 0):g} Hz" if p.get("dither") else ""
         text = {
-            "hold": "hold the arm reference",
+            "hold": "no torque (the pendulum swings freely)" if hanging else "hold the arm reference",
             "step": f"arm reference step to {p.get('phi', 0):g} rad",
             "ramp": f"arm reference ramp to {p.get('phi', 0):g} rad at {p.get('speed', 0):g} rad/s",
             "sweep": f"constant-velocity sweep ±{p.get('amplitude', 0):g} rad at {p.get('speed', 0):g} rad/s",
@@ -134,7 +140,8 @@ class Plan:
         return "\n".join(head) + "\n\n" + "\n\n".join(s.to_toml() for s in self.segments) + "\n"
 
     def describe(self) -> list[str]:
-        lines = [f"{i}/{len(self.segments)} {s.kind}: {s.describe()}" for i, s in enumerate(self.segments, 1)]
+        hanging = self.mode == "hanging"
+        lines = [f"{i}/{len(self.segments)} {s.kind}: {s.describe(hanging)}" for i, s in enumerate(self.segments, 1)]
         r = self.return_segment()
         if r.duration > 0:
             lines.append(f"then {r.describe()}")
@@ -311,7 +318,8 @@ def segment_starts(plan: Plan, rate_hz: float) -> list[int]:
 
 
 class Excitation:
-    """The plan at the control rate, stepped once per balancing tick by the controller (``step``).
+    """The plan at the control rate, stepped once per driven tick by the controller (``step``): balancing, or for a
+    hanging plan (``open_loop``) each open-loop tick, its torque then the whole command.
 
     The first ``settle_s`` of balancing add nothing; then each tick returns (φ_r, φ̇_r, u added) of the plan;
     after the return to 0 it returns zeros and ``done`` is set. A segment's first tick leaves its text in
@@ -319,6 +327,7 @@ class Excitation:
 
     def __init__(self, plan: Plan, rate_hz: float) -> None:
         self.plan = plan
+        self.open_loop = plan.mode == "hanging"
         ref, dot, u = reference_and_torque(plan, rate_hz)
         self._ref, self._dot, self._u = ref.tolist(), dot.tolist(), u.tolist()
         self._n = len(self._ref)
@@ -327,7 +336,7 @@ class Excitation:
         names = [*plan.segments, plan.return_segment()]
         count = len(plan.segments)
         self._marks = {
-            start: f"{EVENT_PREFIX} segment {i + 1}/{count} {seg.kind} start: {seg.describe()}" if i < count
+            start: f"{EVENT_PREFIX} segment {i + 1}/{count} {seg.kind} start: {seg.describe(self.open_loop)}" if i < count
             else f"{EVENT_PREFIX} return start: {seg.describe()}"
             for i, (start, seg) in enumerate(zip(starts, names, strict=False))
         }
@@ -337,7 +346,7 @@ class Excitation:
 
     @property
     def ticks(self) -> int:
-        """Ticks of balancing the plan needs, settling included."""
+        """Driven ticks (balancing, or open loop for a hanging plan) the plan needs, settling included."""
         return self._settle + self._n
 
     def step(self) -> tuple[float, float, float]:
@@ -380,10 +389,15 @@ class SegmentSpan:
     t_stop: float
 
 
+def driven_state(plan: Plan) -> str:
+    """The supervisor state in which the plan's excitation steps: "balancing", or "open_loop" for a hanging plan."""
+    return "open_loop" if plan.mode == "hanging" else "balancing"
+
+
 def segments_in_log(plan: Plan, state: np.ndarray, t: np.ndarray, rate_hz: float) -> list[SegmentSpan]:
-    """The plan's segments located in a log's ticks: the excitation steps once per balancing tick, so segment k
-    starts at balancing tick settle + its offset (the same ticks the "experiment: segment" events mark)."""
-    bal = np.flatnonzero(np.asarray(state) == "balancing")
+    """The plan's segments located in a log's ticks: the excitation steps once per driven tick (``driven_state``),
+    so segment k starts at driven tick settle + its offset (the same ticks the "experiment: segment" events mark)."""
+    bal = np.flatnonzero(np.asarray(state) == driven_state(plan))
     settle = round(plan.settle_s * rate_hz)
     starts = segment_starts(plan, rate_hz)
     total = len(reference_and_torque(plan, rate_hz)[0])

@@ -42,8 +42,9 @@ Metadata records:
 Attachment "rig.toml" carries the same config as a file.
 
 Replay rule: for each /furuta/tick in order, build Measurement(t, theta, theta_dot, phi) from the logged SI values;
-if ``reset`` is true call Controller.reset(phi) first; then call Controller.update if ``state`` is "balancing" or
-"swinging_up", else Controller.hold. With a "calibration" record, θ and φ from the first swinging_up/balancing tick
+if ``reset`` is true call Controller.reset(phi) first; then call Controller.update if ``state`` is one of
+DRIVEN_STATES ("balancing", "swinging_up", or "open_loop": a hanging experiment, the "experiment" record's plan
+driving the arm open loop), else Controller.hold. With a "calibration" record, θ and φ from the first swinging_up/balancing tick
 on are first calibrated (θ = wrap(θ − theta_zero), φ − phi_zero). The logged ``u`` must come out bit-identical.
 """
 
@@ -71,7 +72,8 @@ DEVICE_METADATA = "device"
 TIME_BASE_METADATA = "time_base"
 RIG_ATTACHMENT = "rig.toml"
 
-STATES = ["idle", "armed", "balancing", "tripped", "calibrating", "swinging_up"]  # supervisor states
+STATES = ["idle", "armed", "balancing", "tripped", "calibrating", "swinging_up", "open_loop"]  # supervisor states
+DRIVEN_STATES = ("balancing", "swinging_up", "open_loop")  # the controller's update drove the actuator
 MODES = ["none", "coulomb", "stiction", "lugre", "adaptive"]  # compensation modes (config.CompMode)
 
 _NUM = {"type": "number"}

@@ -2,7 +2,7 @@
 
 The replay rule of furuta_rt.io.log_schema: for each tick in order, Measurement(t, θ, θ̇, φ) from the
 logged SI values; ``reset`` true → Controller.reset(φ) first; Controller.update when the supervisor
-state was "balancing" or "swinging_up" (a --swing-up log: its start-up calibration applied first), else
+state was one of log_schema.DRIVEN_STATES (a --swing-up log: its start-up calibration applied first), else
 Controller.hold (u = 0). With the logged rig, mode and gains the replayed u
 must equal the logged u bit for bit (the determinism check); with others it is what that controller
 would have commanded on the same data (the plant did not see it: no feedback through the plant).
@@ -21,6 +21,7 @@ from furuta_rt.config import CompMode, RigConfig
 from furuta_rt.controller.controller import Controller, Measurement
 from furuta_rt.errors import UserError
 from furuta_rt.experiment.plan import Excitation, plan_of_log
+from furuta_rt.io.log_schema import DRIVEN_STATES
 from furuta_rt.io.mcap_read import LogData, require_ticks
 from furuta_rt.runtime.calibration import CALIBRATION_METADATA, StartupCalibration
 
@@ -111,7 +112,7 @@ def replay_log(
     the_gains = gains if gains is not None else log.gains
     ctrl = Controller.from_rig(the_rig, mode=the_mode, gains=the_gains)  # type: ignore[arg-type]
     plan = plan_of_log(log.metadata)
-    if plan is not None:  # a designed experiment: the same excitation, stepped by the same balancing ticks
+    if plan is not None:  # a designed experiment: the same excitation, stepped by the same driven ticks
         ctrl.excitation = Excitation(plan, log.run.get("rate_hz") or the_rig.control.rate_hz)
     same = (
         (rig is None or rig == log.rig)
@@ -120,7 +121,7 @@ def replay_log(
     )
     tk = log.ticks
     t_l, th_l, thd_l, ph_l = (tk[k].tolist() for k in ("t", "theta", "theta_dot", "phi"))
-    balancing = (tk["state"] == "balancing") | (tk["state"] == "swinging_up")  # the controller drove the actuator
+    balancing = np.isin(tk["state"], DRIVEN_STATES)  # the controller drove the actuator
     apply_startup_calibration(log, balancing, th_l, ph_l)
     reset_l = tk["reset"].tolist()
     # the outputs of the ticks the controller drove, in order, and φ̂̇ of the others (held)

@@ -82,7 +82,7 @@ class RunOptions:
     rig_source: str = "thesis"
     warnings: list[str] = field(default_factory=list)
     comp_source: str = ""  # where the compensation's parameters came from (--comp-from), in words
-    experiment: Any = None  # a designed experiment's plan (furuta_rt.experiment.plan.Plan), run while balancing
+    experiment: Any = None  # a designed experiment's plan (furuta_rt.experiment.plan.Plan): balancing or hanging
     experiment_source: str = ""  # its file
 
 
@@ -286,9 +286,12 @@ def _stop_mock(proc: Any) -> str:
 
 
 def _limits(opts: RunOptions, rate: int) -> Any:
+    from furuta_rt.experiment.hanging import SWING_LIMIT
     from furuta_rt.runtime.supervisor import SupervisorLimits
 
-    limits = SupervisorLimits.from_config(opts.rig.safety, rate, opts.rig.swing_up)
+    hanging = opts.experiment is not None and opts.experiment.mode == "hanging"
+    limits = SupervisorLimits.from_config(opts.rig.safety, rate, opts.rig.swing_up,
+                                          hanging_swing=SWING_LIMIT if hanging else None)
     if opts.max_overruns is not None:
         limits = dataclasses.replace(limits, max_consecutive_overruns=opts.max_overruns)
     return limits
@@ -296,7 +299,9 @@ def _limits(opts: RunOptions, rate: int) -> Any:
 
 def _limits_text(opts: RunOptions, rate: int) -> str:
     lim = _limits(opts, rate)
-    return (f"|θ| < {lim.theta_limit:g} rad, |φ| < {lim.phi_limit:g} rad, link timeout {opts.link_timeout_s * 1e3:g} ms, "
+    theta = f"|θ − π| < {lim.swing_limit:g} rad" if lim.hanging else f"|θ| < {lim.theta_limit:g} rad"
+    return (f"{theta}, |φ| < {lim.phi_limit:g} rad, |u| ≤ {opts.rig.actuator.limit:g}, "
+            f"link timeout {opts.link_timeout_s * 1e3:g} ms, "
             f"device watchdog {opts.watchdog_ms} ms, trip after {lim.max_consecutive_overruns} overruns in a row")
 
 
@@ -509,11 +514,13 @@ def _outcome(result: Any, log_ok: bool, opts: RunOptions, logger_death: str | No
         why = f"the logger process died during the run ({logger_death})" if logger_death else "the logger could not finish it"
         _emit(lambda: _say(f"error: the log {opts.log_path} is incomplete: {why} (exit {EXIT_LOG_INCOMPLETE})"))
         return EXIT_LOG_INCOMPLETE
-    if result.balancing_ticks > 0:
+    if result.balancing_ticks > 0 or result.open_loop_ticks > 0:  # a hanging experiment never balances
         return EXIT_OK
     rig = opts.rig
+    hanging = opts.experiment is not None and opts.experiment.mode == "hanging"
     where = ("the swing-up never reached the catch region" if rig.swing_up.enabled
-             else f"it never came within the arming window (|θ| < {rig.safety.arm_theta:g} rad)")
+             else f"it never came within the arming window about hanging (|θ − π| < {rig.safety.arm_theta:g} rad)"
+             if hanging else f"it never came within the arming window (|θ| < {rig.safety.arm_theta:g} rad)")
     if result.end == "operator_stop":
         _emit(lambda: _say(f"the pendulum did not balance before the operator stop: {where}"))
         return EXIT_OK

@@ -30,7 +30,7 @@ from rich.text import Text
 from furuta_rt.runtime.signals import ignore_in_child as ignore_stop_signals
 
 _STATE_STYLE = {"idle": "yellow", "armed": "cyan", "balancing": "bold green", "tripped": "bold red",
-                "calibrating": "magenta", "swinging_up": "bold cyan"}
+                "calibrating": "magenta", "swinging_up": "bold cyan", "open_loop": "bold magenta"}
 
 
 TRACE_S = 10.0  # seconds of θ, φ, u shown as traces
@@ -79,6 +79,9 @@ STATE_HINTS: dict[str, Callable[[dict[str, Any], DashboardInfo], str]] = {
                                        "hanging, the arm's zero); a moving pendulum is refused"),
     "swinging_up": lambda snap, info: ("swinging up: energy control pumps the pendulum to the upright energy; balancing "
                                        "takes over in the catch region (|θ| and energy, rig [swing_up])"),
+    "open_loop": lambda snap, info: ("hanging experiment, open loop: the plan's torque drives the arm (no balancing); "
+                                     f"trips on |φ| > {info.phi_limit:.3g} rad or the swing limit, link loss or overruns; "
+                                     "the actuator goes to 0 first"),
 }
 """Per supervisor state: the line saying what it waits for or what ends it."""
 

@@ -11,8 +11,9 @@ Per tick:
    applied to θ and φ from then on (the log keeps the device's readings and the calibration as metadata),
    and the controller's catch and fall move the supervisor between swinging_up and balancing;
    with a designed experiment (``Controller.excitation``) each segment's start is logged as an event
-   ("experiment: segment k/n ..."), and the plan's end ends the run;
-4. ``write`` one COMMAND (ENABLE only when balancing). A sample that is already stale (a newer one is
+   ("experiment: segment k/n ..."), and the plan's end ends the run; a hanging experiment's plan drives the
+   actuator open loop through the same ``update`` in the supervisor's ``open_loop`` state;
+4. ``write`` one COMMAND (ENABLE only when balancing, swinging up or open loop). A sample that is already stale (a newer one is
    waiting: the period was missed) runs through the controller, so the observer keeps the device's
    time step, but gets no COMMAND: whole periods are skipped, commands are never burst;
 5. a tick record goes into the current batch; every ``batch_ticks`` ticks the batch is handed to the
@@ -56,6 +57,7 @@ _COMMAND_LATE = int(StatusFlags.COMMAND_LATE)
 _TICK_OVERRUN = int(StatusFlags.TICK_OVERRUN)
 _BALANCING = State.BALANCING
 _SWINGING = State.SWINGING_UP
+_OPEN_LOOP = State.OPEN_LOOP
 _CALIBRATING = State.CALIBRATING
 _TRIPPED = State.TRIPPED
 
@@ -109,6 +111,7 @@ class LoopResult:
     trace: RecentTrace = field(default_factory=RecentTrace)  # t, θ, φ of the last minute of balancing (summary)
     events: list[tuple[int, str, str]] = field(default_factory=list)  # (wall ns, level, message)
     swing_up_ticks: int = 0  # ticks the swing-up drove the actuator
+    open_loop_ticks: int = 0  # ticks a hanging experiment's plan drove the actuator
     catches: int = 0  # swinging_up → balancing
     falls: int = 0  # balancing → swinging_up
     first_catch_s: float = math.nan  # device time from the start of the swing-up to its first catch
@@ -420,7 +423,7 @@ class ControlLoop:
                 ctrl.reset(phi)
             t2 = perf()
             m = Measurement(dev_us * 1e-6, theta, theta_dot, phi)
-            if state is _BALANCING or state is _SWINGING:
+            if state is _BALANCING or state is _SWINGING or state is _OPEN_LOOP:
                 out = ctrl.update(m)
                 if window is not None:
                     was = state
@@ -447,7 +450,7 @@ class ControlLoop:
                 u = u_lin = u_comp = 0.0
                 sat = False
             t3 = perf()
-            acting = state is _BALANCING or state is _SWINGING  # the actuator is ours this period
+            acting = state is _BALANCING or state is _SWINGING or state is _OPEN_LOOP  # the actuator is ours this period
             if not stale and acting and t3 - seen > stale_age_ns:
                 # the SAMPLE aged periods in the host (the process was stopped or starved between read and write): a
                 # torque computed from it is not sent; the period counts as skipped like a stale one. (Its age since
@@ -491,6 +494,8 @@ class ControlLoop:
             r.device_span_s = (dev_us - first_dev_us) * 1e-6
             if state is _SWINGING:
                 r.swing_up_ticks += 1
+            elif state is _OPEN_LOOP:
+                r.open_loop_ticks += 1
             elif state is _BALANCING:
                 r.balancing_ticks += 1
                 if balance_start < 0:

@@ -7,7 +7,7 @@ from typing import Any
 
 from furuta_rt.io.log_schema import TICK_FIELDS, TIMING_FIELDS, device_time_base
 
-STATE_NAMES: tuple[str, ...] = ("idle", "armed", "balancing", "tripped", "calibrating", "swinging_up")
+STATE_NAMES: tuple[str, ...] = ("idle", "armed", "balancing", "tripped", "calibrating", "swinging_up", "open_loop")
 """Supervisor state index → name, as logged in /furuta/tick ``state``."""
 
 TICK_RECORD: tuple[str, ...] = (

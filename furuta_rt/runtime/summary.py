@@ -67,7 +67,7 @@ def summary_dict(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path
     return {
         "rig": rig, "mode": mode, "rate_hz": rate_hz, "end": r.end, "trip_reason": r.trip_reason,
         "trip_message": r.trip_message, "final_state": r.final_state,
-        "ticks": r.ticks, "balancing_ticks": r.balancing_ticks,
+        "ticks": r.ticks, "balancing_ticks": r.balancing_ticks, "open_loop_ticks": r.open_loop_ticks,
         "balanced_s": r.balancing_ticks / rate_hz, "device_span_s": r.device_span_s, "host_span_s": r.host_span_s,
         "achieved_rate_hz": _num(r.rate_hz), "device_rate_hz": _num(r.device_rate_hz),
         "period_us": hist(r.period_us), "jitter_us": hist(r.jitter_us), "read_us": hist(r.read_us),
@@ -173,6 +173,8 @@ def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_pa
             f"  balancing (after its first second): std θ {r.theta.std:.5f} rad, std φ {r.phi.std:.5f} rad, "
             f"std u {r.u.std:.4f}, mean u_comp {r.u_comp.mean:+.4f}"
         )
+    if r.open_loop_ticks:
+        lines.append(f"  hanging experiment: open loop {r.open_loop_ticks / rate_hz:.2f} s")
     elif r.balancing_ticks == 0 and su is None:
         lines.append("  never balanced: the pendulum was not brought within the arming window (|θ| < arm_theta)")
     lines += [line for line in (_limit_cycle_line(r, mode), _injected_line(injected)) if line]

@@ -1,5 +1,6 @@
 """The safety supervisor: a pure state machine, idle → armed → balancing → tripped, or with a swing-up
-idle → calibrating → swinging_up → balancing (→ swinging_up) → tripped.
+idle → calibrating → swinging_up → balancing (→ swinging_up) → tripped, or for a hanging experiment
+idle → armed → open_loop → tripped.
 
 No I/O, no clock: ``step`` gets one tick's measurement and link facts and returns the state the
 tick runs in. The loop obeys it: only ``balancing`` drives the actuator; every other state sends
@@ -20,6 +21,13 @@ With a swing-up (``SupervisorLimits.swing_up``):
     swinging_up  the controller's energy pump drives the actuator; trips as balancing except on |θ|
     balancing    entered and left by the controller's catch / fall (``follow``); the |θ| trip only when
                  the rig's swing_up.on_fall is "trip"
+
+For a hanging experiment (``SupervisorLimits.hanging``: an open-loop plan, furuta_rt.experiment.hanging):
+
+    idle         waiting: the pendulum is not within arm_theta of hanging (θ = π), or a latched fault
+    armed        |θ − π| < arm_theta, no fault: reset, u = 0 for ``settle_ticks``; leaving the window → idle
+    open_loop    the plan's torque drives the actuator (no feedback); trips on |θ − π| > swing_limit,
+                 |φ| > phi_limit, a device fault, a non-finite value, repeated overruns, as balancing
 
 Link loss (no SAMPLE for more than ``link_loss_periods`` periods) and operator stops (SIGINT,
 SIGTERM) trip from any state via ``trip``.
@@ -43,6 +51,7 @@ class State(IntEnum):
     TRIPPED = 3
     CALIBRATING = 4
     SWINGING_UP = 5
+    OPEN_LOOP = 6
 
     @property
     def label(self) -> str:
@@ -91,10 +100,14 @@ class SupervisorLimits:
     settle_ticks: int = 5
     swing_up: bool = False  # calibrate, then swing up from hanging (rig swing_up.enabled)
     trip_on_fall: bool = True  # with a swing-up: a fall trips (on_fall = "trip") instead of swinging up again
+    hanging: bool = False  # a hanging experiment: arm about θ = π, then open loop (no balancing)
+    swing_limit: float = 1.0  # with ``hanging``: the |θ − π| beyond which the open-loop experiment trips
 
     @classmethod
-    def from_config(cls, cfg: SafetyConfig, rate_hz: float, swing_up: SwingUpConfig | None = None) -> SupervisorLimits:
-        """Limits from the rig's [safety] (and [swing_up]); the armed window lasts ~10 ms."""
+    def from_config(cls, cfg: SafetyConfig, rate_hz: float, swing_up: SwingUpConfig | None = None,
+                    hanging_swing: float | None = None) -> SupervisorLimits:
+        """Limits from the rig's [safety] (and [swing_up]); the armed window lasts ~10 ms. ``hanging_swing``: a
+        hanging experiment, tripping beyond this |θ − π|."""
         return cls(
             theta_limit=cfg.theta_limit,
             phi_limit=cfg.phi_limit,
@@ -103,7 +116,14 @@ class SupervisorLimits:
             settle_ticks=max(1, round(0.01 * rate_hz)),
             swing_up=swing_up is not None and swing_up.enabled,
             trip_on_fall=swing_up is None or not swing_up.enabled or swing_up.on_fall == "trip",
+            hanging=hanging_swing is not None,
+            swing_limit=1.0 if hanging_swing is None else hanging_swing,
         )
+
+
+def from_hanging(theta: float) -> float:
+    """|θ − π| wrapped to [0, π]: how far the pendulum is from hanging (θ read modulo 2π or counting turns)."""
+    return abs(math.remainder(theta - math.pi, 2.0 * math.pi))
 
 
 class Supervisor:
@@ -140,7 +160,10 @@ class Supervisor:
         """What keeps an idle supervisor from arming at this measurement (for the operator)."""
         lim = self.limits
         why = []
-        if not abs(theta) < lim.arm_theta:
+        if lim.hanging and not from_hanging(theta) < lim.arm_theta:
+            why.append(f"|θ − π| = {from_hanging(theta):.3f} rad, arms below {lim.arm_theta:g} rad: let the pendulum "
+                       "hang still")
+        elif not lim.hanging and not abs(theta) < lim.arm_theta:
             why.append(f"|θ| = {abs(theta):.3f} rad, arms below {lim.arm_theta:g} rad: bring the pendulum upright")
         if not abs(phi) < lim.phi_limit:
             why.append(f"|φ| = {abs(phi):.3f} rad beyond {lim.phi_limit:g} rad: turn the arm back")
@@ -168,11 +191,13 @@ class Supervisor:
                 self._go(seq, State.CALIBRATING, "calibrate", "calibrating: the pendulum must hang still")
                 return State.CALIBRATING, False
             return s, False
+        off = from_hanging(theta) if lim.hanging else abs(theta)  # from where the run starts: upright or hanging
         if s is State.IDLE:
-            if status & _FAULT_MASK == 0 and abs(theta) < lim.arm_theta and abs(phi) < lim.phi_limit:
+            if status & _FAULT_MASK == 0 and off < lim.arm_theta and abs(phi) < lim.phi_limit:
                 self._settle = 0
                 self._late_run = 0
-                self._go(seq, State.ARMED, "arm", f"armed: |θ| = {abs(theta):.3f} rad < {lim.arm_theta:g} rad")
+                what = "|θ − π|" if lim.hanging else "|θ|"
+                self._go(seq, State.ARMED, "arm", f"armed: {what} = {off:.3f} rad < {lim.arm_theta:g} rad")
                 return State.ARMED, True
             return s, False
         # armed, calibrating, swinging up or balancing: the actuator is (about to be) ours, so every fault trips
@@ -182,20 +207,28 @@ class Supervisor:
         if status & _FAULT_MASK:
             flags = StatusFlags(status & _FAULT_MASK)
             reason = TripReason.SENSOR_FAULT if status & _OVERRANGE_FAULTS else TripReason.DEVICE_FAULT
-            self.trip(seq, reason, f"device reports {flags!s} (status {status:#06x})")
+            self.trip(seq, reason, f"device reports {flags.name} (status {status:#06x})")
             return State.TRIPPED, False
         if s is State.CALIBRATING:
             return s, False
         if s is State.ARMED:
-            if abs(theta) >= lim.arm_theta:
-                self._go(seq, State.IDLE, "disarm", f"disarmed: |θ| = {abs(theta):.3f} rad left the arming window")
+            if off >= lim.arm_theta:
+                what = "|θ − π|" if lim.hanging else "|θ|"
+                self._go(seq, State.IDLE, "disarm", f"disarmed: {what} = {off:.3f} rad left the arming window")
                 return State.IDLE, False
             self._settle += 1
             if self._settle >= lim.settle_ticks:
+                if lim.hanging:
+                    self._go(seq, State.OPEN_LOOP, "open_loop", "open loop: the experiment's torque drives the arm")
+                    return State.OPEN_LOOP, False
                 self._go(seq, State.BALANCING, "balance", "balancing")
                 return State.BALANCING, False
             return s, False
-        # balancing or swinging up
+        if s is State.OPEN_LOOP and off > lim.swing_limit:
+            self.trip(seq, TripReason.THETA_LIMIT, f"|θ − π| = {off:.3f} rad beyond the hanging experiment's limit "
+                      f"{lim.swing_limit:g} rad")
+            return State.TRIPPED, False
+        # balancing, swinging up or open loop
         if abs(theta) > lim.theta_limit and s is State.BALANCING and lim.trip_on_fall:
             self.trip(seq, TripReason.THETA_LIMIT, f"|θ| = {abs(theta):.3f} rad beyond the limit {lim.theta_limit:g} rad")
             return State.TRIPPED, False
