@@ -109,7 +109,7 @@ class AdaptiveCoulomb:
 class Compensator:
     """Computes F̂ from the estimated arm velocity every tick."""
 
-    __slots__ = ("_h", "_law", "_viscous", "adaptive", "mode", "z")
+    __slots__ = ("_h", "_law", "_lugre", "_viscous", "adaptive", "mode", "z")
 
     def __init__(
         self,
@@ -124,6 +124,7 @@ class Compensator:
         self._law = law
         self._viscous = viscous if viscous is not None and viscous.Fv > 0.0 else None
         self.adaptive = law if isinstance(law, AdaptiveCoulomb) else None
+        self._lugre = law if isinstance(law, LuGre) else None  # the type looked up once, not every tick
         self._h = period
         self.z = 0.0
 
@@ -168,12 +169,13 @@ class Compensator:
             self.adaptive.reset()
 
     def __call__(self, v_hat: float, u_lin: float) -> float:
+        lugre = self._lugre
+        if lugre is not None:
+            self.z, z_dot = lugre.advance(self.z, v_hat, self._h)
+            return lugre.force(self.z, z_dot, v_hat)
         law = self._law
         if law is None:
             return 0.0
-        if isinstance(law, LuGre):
-            self.z, z_dot = law.advance(self.z, v_hat, self._h)
-            return law.force(self.z, z_dot, v_hat)
         out = law.compensation(v_hat) if isinstance(law, AdaptiveCoulomb) else law.compensation(v_hat, u_lin)
         viscous = self._viscous
         return out if viscous is None else out + viscous.compensation(v_hat)

@@ -161,7 +161,8 @@ class LuGre:
         """
         if v == 0.0:
             return z, 0.0
-        g = self.g(v)
+        # g(v) of eq. 3, written out: this runs every tick of a LuGre compensator (the same operations as ``g``)
+        g = (self.Fc + (self.Fs - self.Fc) * math.exp(-((v / self.vs) ** 2))) / self.sigma0
         if g == 0.0:  # Fc = Fs = 0: no dry friction, the bristles hold nothing (the limit rate → ∞, z → 0 at once)
             return 0.0, -z / h
         rate = abs(v) / g

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from furuta_rt.config import CompMode, RigConfig
-from furuta_rt.controller.controller import Controller, Measurement
+from furuta_rt.controller.controller import Controller, ControlOutput, Measurement
 from furuta_rt.errors import UserError
 from furuta_rt.experiment.plan import Excitation, plan_of_log
 from furuta_rt.io.log_schema import DRIVEN_STATES
@@ -124,36 +124,36 @@ def replay_log(
     balancing = np.isin(tk["state"], DRIVEN_STATES)  # the controller drove the actuator
     apply_startup_calibration(log, balancing, th_l, ph_l)
     reset_l = tk["reset"].tolist()
-    # the outputs of the ticks the controller drove, in order, and φ̂̇ of the others (held)
-    u: list[float] = []
-    u_lin: list[float] = []
-    u_comp: list[float] = []
-    phd: list[float] = []
-    sat: list[bool] = []
+    # the ControlOutputs of the ticks the controller drove, in order, and φ̂̇ of the others (held)
+    outs: list[ControlOutput] = []
     held: list[float] = []
     update, hold, reset = ctrl.update, ctrl.hold, ctrl.reset
+    # One Measurement refilled per tick: update and hold read its four fields and keep no reference to it (a new
+    # object per tick was a seventh of the replay's time).
+    m = Measurement(0.0, 0.0, 0.0, 0.0)
+
+    def measured(a: int, b: int) -> Iterator[Measurement]:
+        for m.t, m.theta, m.theta_dot, m.phi in zip(t_l[a:b], th_l[a:b], thd_l[a:b], ph_l[a:b], strict=True):
+            yield m
+
     start = time.perf_counter()
     for a, b, drives in _segments(balancing, tk["reset"], _PROGRESS_TICKS):
         if reset_l[a]:
             reset(ph_l[a])
-        ticks = zip(t_l[a:b], th_l[a:b], thd_l[a:b], ph_l[a:b], strict=True)
         if drives:
-            for t, th, thd, ph in ticks:
-                out = update(Measurement(t, th, thd, ph))
-                u.append(out.u)
-                u_lin.append(out.u_lin)
-                u_comp.append(out.u_comp)
-                phd.append(out.phi_dot_hat)
-                sat.append(out.saturated)
+            outs += map(update, measured(a, b))
         else:
-            held += [hold(Measurement(t, th, thd, ph)) for t, th, thd, ph in ticks]
+            held += map(hold, measured(a, b))
         if progress is not None:
             progress(b, n)
     wall = time.perf_counter() - start
     u_arr, u_lin_arr, u_comp_arr, phd_arr = (np.zeros(n) for _ in range(4))
     sat_arr = np.zeros(n, dtype=bool)
-    for arr, values in ((u_arr, u), (u_lin_arr, u_lin), (u_comp_arr, u_comp), (phd_arr, phd), (sat_arr, sat)):
-        arr[balancing] = values
+    if outs:  # the named tuples as columns in one conversion (fields u, u_lin, u_comp, φ̂̇, saturated, swinging)
+        table = np.fromiter(itertools.chain.from_iterable(outs), float, len(outs) * len(ControlOutput._fields))
+        table = table.reshape(len(outs), len(ControlOutput._fields))
+        for arr, column in ((u_arr, 0), (u_lin_arr, 1), (u_comp_arr, 2), (phd_arr, 3), (sat_arr, 4)):
+            arr[balancing] = table[:, column]
     phd_arr[~balancing] = held
     logged = tk["u"]
     diff = (u_arr != logged) & balancing

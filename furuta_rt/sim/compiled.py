@@ -70,16 +70,42 @@ def unsupported(model: RigModel) -> str | None:
     return None
 
 
+def _state_field(i: int, name: str) -> property:
+    """A state attribute of the Simulator kept in plant.c's state array (read and written in place)."""
+
+    def get(self: CompiledSimulator) -> float:
+        return self._state[i]
+
+    def put(self: CompiledSimulator, value: float) -> None:
+        self._state[i] = value
+
+    return property(get, put, doc=f"{name}, in plant.c's state array")
+
+
 class CompiledSimulator(Simulator):
-    """Simulator whose ``advance`` runs in plant.c (see the module docstring); same constructor."""
+    """Simulator whose ``advance`` runs in plant.c (see the module docstring); same constructor. The plant's state
+    lives in plant.c's array: the attributes of the reference (theta, …, stuck) read and write it, so a tick hands
+    C nothing to copy."""
+
+    for _i, _name in enumerate(STATE):
+        locals()[_name] = _state_field(_i, _name)
+    del _i, _name
+
+    @property
+    def stuck(self) -> bool:
+        return self._state[len(STATE)] != 0.0
+
+    @stuck.setter
+    def stuck(self, value: bool) -> None:
+        self._state[len(STATE)] = 1.0 if value else 0.0
 
     def __init__(self, model: RigModel, *args: object, **kwargs: object) -> None:
         why = unsupported(model)
         if why is not None:
             raise ValueError(f"the compiled plant does not cover {why}: use Simulator")
+        self._state = (ctypes.c_double * (len(STATE) + 1))()
         super().__init__(model, *args, **kwargs)  # type: ignore[arg-type]
         self._lib = load_library()
-        self._state = (ctypes.c_double * (len(STATE) + 1))()
         n = len(self._delay_line)
         self._n_delay = n
         self._ring = (ctypes.c_double * max(3 * n, 1))()
@@ -131,13 +157,7 @@ class CompiledSimulator(Simulator):
             self._shaped_for = self.command
             self._shaped = self.model.actuator.torque_terms(self.command)
         tau0, damp = self._shaped
-        s = self._state
-        s[:] = (self.theta, self.theta_dot, self.phi, self.phi_dot, self.y, self.y_dot, self.z,
-                self.arm_friction_torque, 1.0 if self.stuck else 0.0)
         self._call(*self._refs, tau0, damp, self.command, ticks * self.n_sub)
-        (self.theta, self.theta_dot, self.phi, self.phi_dot, self.y, self.y_dot, self.z, self.arm_friction_torque,
-         stuck) = s
-        self.stuck = stuck != 0.0
         self.t += ticks / self.rate_hz
 
 
