@@ -379,9 +379,11 @@ def test_run_hanging_experiment_over_the_pty(tmp_path: Path) -> None:
     _, _, torque = reference_and_torque(plan, RATE)
     full_scale = float(log.metadata["device"]["actuator_full_scale"])
     got = _device_commands(rec)
-    plan_ticks = opened[: 250 + len(torque)]
+    first = int(t["seq"][opened[0]])  # the plan's tick i answers SAMPLE first + i (the device's own numbering)
     want = _counts(np.concatenate([np.zeros(250), torque]), full_scale)
-    assert [got[int(q)] for q in t["seq"][plan_ticks]] == [(int(c), int(CommandFlags.ENABLE)) for c in want]
+    answered = [i for i in range(len(want)) if first + i in got]  # a SAMPLE the host found stale gets no COMMAND
+    assert len(answered) >= 0.99 * len(want)
+    assert [got[first + i] for i in answered] == [(int(want[i]), int(CommandFlags.ENABLE)) for i in answered]
     assert all(got[int(q)] == (0, 0) for q in t["seq"][: opened[0]] if int(q) in got)
     assert 0.01 < hanging.swing(t["theta"][opened]) < 1.0 and np.abs(t["phi"]).max() > 0.05
     assert replay_log(log).exact
