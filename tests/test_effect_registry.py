@@ -109,3 +109,67 @@ def test_air_drag_is_tried_only_when_asked() -> None:
         with pytest.raises(UserError, match=why) as err:
             _options(ns(name))
         assert "arm_air_drag" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_the_regression_reads_every_effect_from_its_class_alone() -> None:
+    """No effect is handled by name in the regression library: it holds no `match` and no registered effect's name in
+    its Candidate; each candidate's columns, parameters, plausibility and nonlinear parameter are its class's."""
+    import ast
+    import inspect
+
+    from furuta_rt.diagnose.regression import library
+
+    tree = ast.parse(inspect.getsource(library))
+    assert not any(isinstance(n, ast.Match) for n in ast.walk(tree))
+    cand = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "Candidate")
+    assert not {c.value for c in ast.walk(cand) if isinstance(c, ast.Constant)} & set(EFFECT_TYPES)
+    assert list(CANDIDATES) == [n for n, c in EFFECT_TYPES.items() if c.regressed]  # the registry's order is the search's
+    assert "arm_stiction" not in CANDIDATES  # measured on the stick windows, not by the regression
+    for name, cand in CANDIDATES.items():
+        cls = EFFECT_TYPES[name]
+        assert (cand.nonlinear, cand.requires, cand.excludes) == (cls.nonlinear, cls.requires, cls.excludes)
+        assert all(EFFECT_TYPES[e].regressed for e in (*cand.excludes, *filter(None, [cand.requires])))
+
+
+def test_an_effect_with_its_own_columns_is_a_candidate_by_its_class_alone(monkeypatch) -> None:
+    """A spelled-out effect (not a torque law): a class with its own columns and nothing in the library is fitted like
+    the built-in effect of the same physics. A twin of arm_bias written as a new class reads the same constant torque,
+    to the last digit, from a recording of the thesis rig with a 0.05 N m bias, and is refused like it when negative."""
+    from benchmarks.suite import reference_signal
+    from furuta_rt.diagnose import Options
+    from furuta_rt.diagnose.regression.library import Candidate, Context
+    from furuta_rt.diagnose.regression.selection import EquationModel
+    from furuta_rt.diagnose.regression.states import prepare
+    from furuta_rt.diagnose.stages.start import arm_sigma
+    from furuta_rt.model.effects import Effect
+    from furuta_rt.sim.closed_loop import run_closed_loop
+
+    class ArmBiasTwin(Effect):  # what a contributor would write in model/effects.py
+        name = "arm_bias_twin"
+        tau: float = 0.0
+
+        @classmethod
+        def columns(cls, ctx, path, vs):
+            return np.ones((ctx.prep.n, 1))
+
+        @classmethod
+        def plausible(cls, par, rig, travel):
+            return par["tau"] > 0
+
+    try:
+        monkeypatch.setitem(CANDIDATES, "arm_bias_twin", Candidate("arm_bias_twin"))
+        rig = load_rig("thesis")
+        rec = run_closed_loop(rig, 12.0, effects=Effects.model_validate({"arm_bias": {"tau": 0.05}}), seed=4,
+                              reference=reference_signal("sine", 6000, 500.0, 4))
+        o = Options()
+        prep = prepare(rec, rig)
+        ctx = Context.build(prep, rig, arm_sigma(prep), o.sigma_pend, o.sigma_fine)
+        em = EquationModel(ctx, ARM, o.thresholds)
+        twin = em.evaluate(em.spec0().with_effect("arm_bias_twin"))
+        built_in = em.evaluate(em.spec0().with_effect("arm_bias"))
+        assert twin.params["arm_bias_twin"]["tau"] == built_in.params["arm_bias"]["tau"]
+        assert abs(twin.params["arm_bias_twin"]["tau"] - 0.05) < 0.005 and twin.cv == built_in.cv
+        assert CANDIDATES["arm_bias_twin"].plausible({"tau": 0.05}, rig)
+        assert not CANDIDATES["arm_bias_twin"].plausible({"tau": -0.05}, rig)
+    finally:
+        EFFECT_TYPES.pop("arm_bias_twin", None)

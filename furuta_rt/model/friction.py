@@ -18,6 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def law_on_array(law_torque, v: np.ndarray) -> np.ndarray:
+    """A scalar friction law of this module (its ``torque``) evaluated on an array of velocities."""
+    return np.vectorize(law_torque, otypes=[float])(v)
+
+
 def _sign(v: float) -> float:
     return 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
 

@@ -13,7 +13,7 @@ from typing import Protocol
 
 from furuta_rt.model.actuator import Actuator, DCMotor
 from furuta_rt.model.coupling import Coupling
-from furuta_rt.model.effects import PEND, Effects, JointTorque
+from furuta_rt.model.effects import PEND, PENDULUM_COULOMB_EPSILON, Effects, JointTorque
 from furuta_rt.model.friction import Coulomb, CoulombStiction, JointFriction, LuGre, Viscous
 from furuta_rt.model.parameters import LumpedParameters
 from furuta_rt.model.plant import FurutaPlant
@@ -51,9 +51,6 @@ class RigSpec(Protocol):
     sensors: SensorSpec
 
     def lumped(self) -> LumpedParameters: ...
-
-# Pendulum-pivot Coulomb friction is simulated with eq. 1's smoothed transition (rad/s).
-PENDULUM_COULOMB_EPSILON = 0.01
 
 
 @dataclass(frozen=True, slots=True)

@@ -22,15 +22,10 @@ import numpy as np
 from furuta_rt.config import RigConfig
 from furuta_rt.diagnose.regression.states import Prepared, States
 from furuta_rt.model.actuator import Actuator
-from furuta_rt.model.effects import ARM, EFFECT_TYPES, PEND, JointTorque
-from furuta_rt.model.friction import Coulomb, LuGre, Viscous
+from furuta_rt.model.effects import ARM, EFFECT_TYPES, PEND, Effect, JointTorque, total_latency
+from furuta_rt.model.friction import Coulomb, LuGre, law_on_array
 from furuta_rt.model.plant import FurutaPlant
-from furuta_rt.model.rig import PENDULUM_COULOMB_EPSILON, RigModel
-
-
-def law_on_array(law_torque, v: np.ndarray) -> np.ndarray:
-    """A scalar friction law of furuta_rt.model.friction evaluated on an array of velocities."""
-    return np.vectorize(law_torque, otypes=[float])(v)
+from furuta_rt.model.rig import RigModel
 
 
 def piecewise_linear_on_array(f, x: np.ndarray, kinks: tuple[float, ...]) -> np.ndarray:
@@ -382,17 +377,14 @@ QUIET_THETA_DOT = 0.05  # rad/s: a pendulum slower than this hardly pushes the a
 
 @dataclass(frozen=True)
 class Candidate:
-    """One named effect of the registry (furuta_rt.model.effects.EFFECT_TYPES) as seen by the regression: its row of
-    eq. 4, size parameter and look-alikes are the registry's; how its parameters enter the residual is below — a
-    JointTorque's columns are its torque law's basis, the other effects' are spelled out per effect."""
+    """One named effect of the registry (furuta_rt.model.effects.EFFECT_TYPES) as the regression sees it: its row of
+    eq. 4, size parameter, look-alikes and how it enters the residual (columns, parameters from the fit, plausibility,
+    nonlinear parameter) are all the registry class's; the candidate caches its columns per recording."""
 
     name: str
-    nonlinear: str | None = None  # "delay" | "deadzone" | "limit" (command path), "inertia" (ΔJ), "vs" (Stribeck)
-    requires: str | None = None  # an effect that must be in the model first
-    excludes: tuple[str, ...] = ()  # effects it cannot be added to (the same parameter, or the same column)
 
     @property
-    def effect(self) -> type:
+    def effect(self) -> type[Effect]:
         return EFFECT_TYPES[self.name]
 
     @property
@@ -412,123 +404,44 @@ class Candidate:
     def lookalikes(self) -> tuple[str, ...]:
         return self.effect.lookalikes
 
+    @property
+    def nonlinear(self) -> str | None:
+        """The nonlinear parameter it moves (selection.Spec.with_value's kind), or None."""
+        return self.effect.nonlinear
+
+    @property
+    def requires(self) -> str | None:
+        return self.effect.requires
+
+    @property
+    def excludes(self) -> tuple[str, ...]:
+        return self.effect.excludes
+
     def columns(self, ctx: Context, path: InputPath, vs: float = 0.0) -> np.ndarray:
         """(n, k) regressors for this effect's linear parameters (k = 0 for pure input-path effects)."""
-        if self.name == "input_gain":
-            return ctx.command_torque(path)[:, None]
-        if self.name == "arm_lugre":
-            return ctx.stribeck(vs)[:, None]
+        if self.effect.varying:
+            return self.effect.columns(ctx, path, vs)
         cached = ctx._columns.get(self.name)
         if cached is None:
-            cached = ctx._columns[self.name] = self._columns(ctx)
+            cached = ctx._columns[self.name] = self.effect.columns(ctx, path, vs)
         return cached
 
-    def _columns(self, ctx: Context) -> np.ndarray:
-        n = ctx.prep.n
-        a, p, f = ctx.arm, ctx.pend, ctx.fine
-        match self.name:
-            case "arm_coulomb":
-                return a.smooth(law_on_array(Coulomb(1.0).torque, ctx.arm_direction))[:, None]
-            case "arm_viscous":
-                return Viscous(1.0).torque(a.phi_dot)[:, None]
-            case "arm_bias":  # RigModel.arm_bias: a constant torque on the arm (the kernel integrates to one)
-                return np.ones((n, 1))
-            case "arm_spring":
-                # −k(φ − φ0) = −k·φ + (k φ0): the cable spring of RigModel.spring_k / spring_phi0
-                return np.column_stack([-a.phi, np.ones(n)])
-            case "pendulum_viscous":
-                return Viscous(1.0).torque(p.theta_dot)[:, None]
-            case "pendulum_coulomb":
-                return p.product(law_on_array(Coulomb(1.0, PENDULUM_COULOMB_EPSILON).torque, f.theta_dot))[:, None]
-            case "theta_offset":
-                h = 1e-4
-                up, down = ctx.inverse_dynamics(PEND, theta_shift=-h), ctx.inverse_dynamics(PEND, theta_shift=h)
-                return ((up - down) / (2 * h))[:, None]
-        if issubclass(self.effect, JointTorque):
-            return ctx.joint_torque_columns(self.effect)
-        return np.zeros((n, 0))
-
     def params(self, coef: np.ndarray, path: InputPath, gain: float, ctx: Context, d_inertia: float = 0.0) -> dict[str, float]:
-        """SI parameters in the diagnose JSON names from the fitted coefficients: totals, the rig's own value of the
-        effect (if it has one) plus the departure the data asks for. ``gain``: the total input gain."""
-        k = ctx.known_value
-        match self.name:
-            case "arm_coulomb":
-                return {"Fc": k("arm_coulomb", "Fc") + float(coef[0])}
-            case "arm_viscous":
-                return {"Fv": k("arm_viscous", "Fv") + float(coef[0])}
-            case "arm_spring":
-                k0, phi00 = k("arm_spring", "k"), k("arm_spring", "phi0")
-                kk = k0 + float(coef[0])
-                return {"k": kk, "phi0": (k0 * phi00 + float(coef[1])) / kk if kk != 0 else 0.0}
-            case "arm_inertia":
-                return {"J": float(ctx.base_inertia + d_inertia)}
-            case "arm_bias":
-                return {"tau": k("arm_bias", "tau") + float(coef[0])}
-            case "input_gain":
-                return {"gain": float(ctx.known_gain * (1.0 + coef[0]))}
-            case "pendulum_viscous":
-                return {"bp": k("pendulum_viscous", "bp") + float(coef[0])}
-            case "pendulum_coulomb":
-                return {"Fc": k("pendulum_coulomb", "Fc") + float(coef[0])}
-            case "theta_offset":
-                return {"offset": k("theta_offset", "offset") + float(coef[0])}
-            case "arm_lugre":  # the Stribeck peak above the sliding level; completed with Fc, Fv by the caller
-                return {"Fs_minus_Fc": float(coef[0])}
-            case "input_delay":
-                return {"delay": float(path.delay)}
-            case "command_latency":  # the total from the sample instant (command_delay_ticks·h + the path's delay)
-                return {"delay": float(ctx.prep.command_lag + path.delay)}
-            case "input_deadzone":
-                return {"width": float(path.deadzone * gain)}
-            case "input_saturation":
-                return {"limit": float((path.limit or 0.0) * gain)}
-        if issubclass(self.effect, JointTorque):  # linear in its parameters: the rig's own value plus the departure
-            return {p: k(self.name, p) + float(c) for p, c in zip(self.effect.model_fields, coef, strict=True)}
-        raise KeyError(self.name)
+        """SI parameters in the diagnose JSON names from the fitted coefficients (totals; ``gain``: the total input
+        gain)."""
+        return self.effect.from_fit(coef, ctx, path, gain, d_inertia)
 
     def plausible(self, par: dict[str, float], rig: RigConfig, travel: tuple[float, float] | None = None) -> bool:
-        """Physically admissible values (friction opposes motion, springs restore, inertia positive). With the arm's
-        ``travel`` (Context.arm_travel): a spring only on an arm whose travel allows a cable (less than a turn),
-        centred inside that travel."""
-        match self.name:
-            case "arm_coulomb" | "arm_viscous" | "pendulum_viscous" | "pendulum_coulomb":
-                return next(iter(par.values())) > 0
-            case "arm_spring":
-                if travel is None:
-                    return par["k"] > 0 and abs(par["phi0"]) < 2 * np.pi
-                lo, hi = travel
-                return par["k"] > 0 and hi - lo < MAX_SPRING_TRAVEL and lo <= par["phi0"] <= hi
-            case "arm_inertia":
-                return par["J"] > 0.05 * rig.plant.arm_inertia
-            case "input_gain":  # any positive factor a datasheet or a drive mode may be off by (×0.01 … ×1000 seen:
-                # a driver's gain, a current or velocity mode, a command in per-unit rather than volts); the sign is
-                # checks.conventions' business
-                return MIN_GAIN < par["gain"] < MAX_GAIN
-            case "input_delay":
-                return par["delay"] > 0
-            case "command_latency":  # shorter than the nominal one (a longer one is an input_delay on top of it), and
-                # causal: an optimum more than half a tick below 0 is something else that a lead would mimic
-                return -0.5 / rig.control.rate_hz <= par["delay"] < nominal_latency(rig)
-            case "theta_offset":
-                return abs(par["offset"]) < 0.3
-            case "arm_lugre":
-                return par.get("Fs_minus_Fc", par.get("Fs", 0.0) - par.get("Fc", 0.0)) > 0
-        if issubclass(self.effect, JointTorque):  # a torque law: its parameters bounded below by 0 must be > 0
-            return self.effect.admissible(par)
-        return True
+        """Physically admissible values (friction opposes motion, springs restore, inertia positive); ``travel``:
+        Context.arm_travel."""
+        return self.effect.plausible(par, rig, travel)
 
 
 def nominal_latency(rig: RigConfig) -> float:
-    """The rig's own latency from the sample instant to the torque (s): its command_latency effect, else
-    command_delay_ticks·h + its input_delay."""
-    e = rig.effects
-    if e.command_latency is not None:
-        return e.command_latency.delay
-    return rig.control.command_delay_ticks / rig.control.rate_hz + (e.input_delay.delay if e.input_delay else 0.0)
+    """The rig's own latency from the sample instant to the torque (s): effects.total_latency of its configuration."""
+    return total_latency(rig.effects, rig.control.command_delay_ticks, rig.control.rate_hz)
 
 
-MIN_GAIN, MAX_GAIN = 1e-3, 1e4  # input_gain: the torque per command unit may be this far off the config's
 KINK_MARGIN = 0.02  # a command within this share of a kink is on neither side of it
 KINK_MIN_SAMPLES, KINK_MIN_SHARE = 10, 0.005  # the commands needed on each side of a kink (count, share of the rows)
 
@@ -545,29 +458,7 @@ def kink_supported(u: np.ndarray, kink: float) -> bool:
     return kink > 0 and below >= need and above >= need
 
 
-MAX_SPRING_TRAVEL = 2 * np.pi  # rad: an arm that turns a whole revolution cannot be tied by a cable
 INERTIA_STEP = 1e-3  # kg m², for the derivative of ID with respect to J (ID is linear in J: exact)
 
-_SPELLED_OUT = (  # the effects whose parameters enter the residual in their own way (columns, params above)
-    Candidate("arm_coulomb"),
-    Candidate("arm_viscous"),
-    Candidate("arm_spring", excludes=("arm_bias",)),
-    Candidate("arm_bias", excludes=("arm_spring",)),
-    Candidate("arm_inertia", nonlinear="inertia"),
-    Candidate("input_gain"),
-    Candidate("input_delay", nonlinear="delay", excludes=("command_latency",)),
-    Candidate("command_latency", nonlinear="latency", excludes=("input_delay",)),
-    Candidate("input_deadzone", nonlinear="deadzone"),
-    Candidate("input_saturation", nonlinear="limit"),
-    Candidate("arm_lugre", nonlinear="vs", requires="arm_coulomb"),
-    Candidate("pendulum_viscous"),
-    Candidate("pendulum_coulomb"),
-    Candidate("theta_offset"),
-)
-CANDIDATES: dict[str, Candidate] = {
-    c.name: c
-    for c in (
-        *_SPELLED_OUT,
-        *(Candidate(name) for name, cls in EFFECT_TYPES.items() if issubclass(cls, JointTorque)),
-    )
-}
+CANDIDATES: dict[str, Candidate] = {name: Candidate(name) for name, cls in EFFECT_TYPES.items() if cls.regressed}
+"""The regression's candidates: every registered effect it measures, in the registry's order (the order it tries them)."""
