@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from furuta_rt.errors import UserError
-from furuta_rt.io.inputs import read_bounded, regular_input
+from furuta_rt.inputs import read_bounded, regular_input
 
 MAX_TOML_BYTES = 16 * 1024 * 1024
 """A rig, mapping or mock config is kilobytes; more is not one (and is not read into memory)."""

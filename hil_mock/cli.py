@@ -22,8 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from firmware_protocol.hostbuild import BuildError
-from furuta_rt.cli import OneLineParser
-from furuta_rt.errors import UserError
+from furuta_rt.errors import OneLineParser, UserError
 from furuta_rt.io.output import claim_outputs, write_text
 from furuta_rt.tomlfile import read_toml
 from hil_mock.config import MockConfig, build_config

@@ -82,6 +82,7 @@ def test_practical_size_moves_an_effect_below_it_out_and_refits(monkeypatch: pyt
     the arm equation is refitted without it."""
     import furuta_rt.diagnose.judgement.practical as practical
     from benchmarks import suite_independent as ind
+    from furuta_rt.diagnose.stages import practical_size
 
     case = next(c for c in ind.CASES if c.name == "arm_viscous")
     rec = ind.simulate(case, 20.0)
@@ -89,7 +90,7 @@ def test_practical_size_moves_an_effect_below_it_out_and_refits(monkeypatch: pyt
     D = diagnose(rec, rig, Options(closed_loop=False))
     assert "arm_viscous" in D.names and D.below_practical == []
     ctx, em, r = D.context, D.models["arm"], D.equations["arm"]
-    size = practical.sizes(ctx, em, r)["arm_viscous"]
+    size = practical.sizes(ctx, em, r.selected)["arm_viscous"]
     fv = next(f.params["Fv"] for f in D.effects if f.name == "arm_viscous")
     rows = em.row_mask
     expect = fv * np.sqrt(np.mean(ctx.arm.phi_dot[rows] ** 2)) / np.sqrt(np.mean(ctx.command_torque(ctx.base_path)[rows] ** 2))
@@ -97,7 +98,7 @@ def test_practical_size_moves_an_effect_below_it_out_and_refits(monkeypatch: pyt
     assert size > practical.PRACTICAL_SHARE
     monkeypatch.setattr(practical, "PRACTICAL_SHARE", 1.5 * size)
     res = dict(D.equations)
-    kept, below = practical.split(ctx, D.models, res, list(D.effects), 0)
+    kept, below = practical_size.split(ctx, D.models, res, list(D.effects), 0)
     assert "arm_viscous" not in [f.name for f in kept]
     assert [b["name"] for b in below] == ["arm_viscous"] and below[0]["size"] == pytest.approx(size)
     assert "arm_viscous" not in res["arm"].selected.spec.effects

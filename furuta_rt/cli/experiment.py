@@ -19,7 +19,7 @@ from pathlib import Path
 
 from furuta_rt.cli._common import add_config_argument, add_force_argument, rig_from_args
 from furuta_rt.errors import UserError
-from furuta_rt.io.inputs import read_bounded, regular_input
+from furuta_rt.inputs import read_bounded, regular_input
 from furuta_rt.io.output import claim_outputs, write_text
 
 

@@ -24,7 +24,7 @@ from pydantic import ValidationError
 
 from furuta_rt.config import CompensationConfig, CompMode
 from furuta_rt.errors import UserError
-from furuta_rt.io.inputs import read_bounded, regular_input
+from furuta_rt.inputs import read_bounded, regular_input
 from furuta_rt.model.effects import Effects
 
 ARM_FRICTION = ("arm_coulomb", "arm_stiction", "arm_lugre", "arm_viscous")

@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -45,8 +45,17 @@ from furuta_rt.controller.swingup import SwingUp, SwingUpDesign, wrap_angle
 from furuta_rt.model.plant import FurutaPlant
 from furuta_rt.model.sensors import Measurement
 
-if TYPE_CHECKING:
-    from furuta_rt.experiment.plan import Excitation
+
+class Excitation(Protocol):
+    """A designed experiment as the controller and the run loop see it (furuta_rt.experiment.plan.Excitation builds
+    one from a plan): ``step`` once per balancing tick gives (φ_e, φ̇_e, u_e); ``take_message`` a segment's start to
+    log, ``done`` once the plan has returned to 0."""
+
+    done: bool
+
+    def step(self) -> tuple[float, float, float]: ...
+
+    def take_message(self) -> str | None: ...
 
 
 class ControlOutput(NamedTuple):

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from furuta_rt.errors import UserError
-from furuta_rt.io.inputs import regular_input
+from furuta_rt.inputs import regular_input
 from furuta_rt.recording import Recording
 
 REQUIRED = ("t", "theta", "phi", "u")

@@ -27,7 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from furuta_rt.config import RigConfig
 from furuta_rt.errors import UserError
-from furuta_rt.io.inputs import regular_input
+from furuta_rt.inputs import regular_input
 from furuta_rt.model.actuator import DCMotor
 from furuta_rt.recording import Recording
 from furuta_rt.tomlfile import read_toml

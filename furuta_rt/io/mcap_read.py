@@ -40,8 +40,8 @@ from mcap.stream_reader import StreamReader, get_chunk_data_stream
 
 from furuta_rt.config import RigConfig, rig_from_dict
 from furuta_rt.errors import UserError
+from furuta_rt.inputs import regular_input
 from furuta_rt.io import log_schema as ls
-from furuta_rt.io.inputs import regular_input
 from furuta_rt.recording import Recording
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"

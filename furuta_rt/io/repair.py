@@ -16,7 +16,7 @@ from mcap.stream_reader import breakup_chunk
 from mcap.writer import Writer
 
 from furuta_rt.errors import UserError
-from furuta_rt.io.inputs import regular_input
+from furuta_rt.inputs import regular_input
 from furuta_rt.io.locks import refuse_if_being_written
 from furuta_rt.io.mcap_read import _READ_ERRORS, MCAP_MAGIC, _LogStreamReader
 from furuta_rt.io.output import refuse_existing, replace_when_done

@@ -13,8 +13,7 @@ from collections.abc import Callable
 import numpy as np
 
 from furuta_rt.config import CompMode, RigConfig
-from furuta_rt.controller.controller import Controller
-from furuta_rt.experiment.plan import Excitation
+from furuta_rt.controller.controller import Controller, Excitation
 from furuta_rt.model.coupling import Coupling
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel

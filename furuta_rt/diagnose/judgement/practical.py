@@ -22,17 +22,16 @@ from furuta_rt.diagnose.judgement.locate import torque_scale
 
 if TYPE_CHECKING:
     from furuta_rt.diagnose.regression.library import Context
-    from furuta_rt.diagnose.regression.selection import EquationModel
-    from furuta_rt.diagnose.stages.findings import EquationResult, Found
+    from furuta_rt.diagnose.regression.selection import EquationModel, Evaluation
 
 PRACTICAL_SHARE = 1e-3  # of the equation's torque scale
 FLOOR_FRACTION = 0.1  # of the equation's noise floor (rms)
 ID = "inverse dynamics"
 
 
-def sizes(ctx: Context, em: EquationModel, r: EquationResult) -> dict[str, float]:
-    """Each selected effect's torque rms on the equation's rows, relative to its torque scale."""
-    spec, coef = r.selected.spec, r.selected.fit.coef
+def sizes(ctx: Context, em: EquationModel, selected: Evaluation) -> dict[str, float]:
+    """Each effect of ``selected``'s torque rms on the equation's rows, relative to its torque scale."""
+    spec, coef = selected.spec, selected.fit.coef
     if not spec.effects or coef is None:
         return {}
     X, owners = em.design(spec)
@@ -52,33 +51,13 @@ def floor_share(ctx: Context, em: EquationModel, seed: int) -> float:
     return float(np.sqrt(np.mean(draws**2))) / torque_scale(ctx, em.equation, rows)
 
 
-def split(ctx: Context, ems: dict[str, EquationModel], res: dict[str, EquationResult], found: list[Found],
-          seed: int) -> tuple[list[Found], list[dict]]:
-    """(the effects of practical size, the others as {name, equation, params, size, floor}); ``res`` is refitted in
-    place without the latter."""
-    from furuta_rt.diagnose.stages.findings import EquationResult, found_in, refit
-
-    below: list[dict] = []
-    for eq, r in list(res.items()):
-        if not any(f.equation == eq and f.source == ID for f in found):
-            continue
-        share = sizes(ctx, ems[eq], r)
-        floor = floor_share(ctx, ems[eq], seed)
-        small = [f for f in found if f.equation == eq and f.source == ID and f.name in share
-                 and share[f.name] < max(PRACTICAL_SHARE, FLOOR_FRACTION * floor)]
-        if not small:
-            continue
-        spec = r.selected.spec
-        for f in small:
-            spec = spec.without(f.name)
-        res[eq] = EquationResult(eq, r.rows, r.nominal, refit(ems[eq], spec) if spec.effects else r.nominal,
-                                 r.trace, r.location)
-        keep = {f.name for f in found if f.equation == eq and f.source == ID} - {f.name for f in small}
-        fresh = {f.name: f for f in found_in(ems[eq], res[eq], []) if f.name in keep}
-        found = [fresh.get(f.name, f) if f.equation == eq and f.source == ID else f for f in found if f not in small]
-        below += [{"name": f.name, "equation": eq, "params": f.params, "size": share[f.name], "floor": floor}
-                  for f in small]
-    return found, below
+def too_small(ctx: Context, em: EquationModel, selected: Evaluation, names: list[str],
+              seed: int) -> tuple[list[str], dict[str, float], float]:
+    """(those of ``names`` below practical size in ``selected``, every selected effect's size, the equation's noise
+    floor), sizes and floor as shares of the equation's torque scale."""
+    share = sizes(ctx, em, selected)
+    floor = floor_share(ctx, em, seed)
+    return [n for n in names if n in share and share[n] < max(PRACTICAL_SHARE, FLOOR_FRACTION * floor)], share, floor
 
 
 def describe(below: list[dict]) -> str:
