@@ -258,3 +258,20 @@ def test_a_short_50_hz_swing_of_a_right_config_is_consistent(qube: RigConfig) ->
     assert right.verdict == "consistent", right
     wrong = pendulum(1.1)
     assert wrong.verdict == "unexplained" and wrong.residual_nominal > 2 * wrong.noise_floor, wrong
+
+
+def test_one_step_hides_sliding_friction_in_the_gain() -> None:
+    """A 2 V step on a macstepien-shaped arm with Coulomb friction 0.005 N m: the arm slides one way under one command,
+    where Fc·sgn(φ̇) is the same column as the gain (read 1 − Fc/(K·2 V) ≈ 0.61 × nominal) — no dry friction is named
+    and the notes say why and which recordings separate them. ±V pulses (both ways) get no such note."""
+    rig = load_rig("macstepien")
+    effects = ["arm_coulomb.Fc=0.005", "arm_viscous.Fv=0.0117"]
+    step = driven_recording(rig, effects, 500.0, 3.0, lambda t: 2.0 if t >= 0.5 else 0.0, seed=3)
+    d = diagnose(step, rig, FAST)
+    gain = {e.name: e.params for e in d.effects}.get("input_gain")
+    assert "arm_coulomb" not in d.names and gain is not None, d.names
+    k = rig.actuator.Kt / rig.actuator.R  # N m per volt at rest
+    assert gain["gain"] == pytest.approx(1 - 0.005 / (2.0 * k), rel=0.05)
+    assert any(n.startswith("dry friction cannot be read on this recording") for n in d.notes), d.notes
+    pulses = diagnose(driven_recording(rig, effects, 500.0, 6.0, square_pulses(2.0), seed=3), rig, FAST)
+    assert not any(n.startswith("dry friction cannot be read") for n in pulses.notes), pulses.notes
