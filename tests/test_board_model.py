@@ -467,17 +467,42 @@ def test_the_default_image_has_no_pendulum_encoder(image: Path) -> None:
 
 def test_the_uart_interrupt_load_is_priced_from_the_image(image: Path) -> None:
     """scripts/firmware_uart_load runs the image on the model and prices what it executes with firmware_ticks' model:
-    one USART2 interrupt per byte each way (a short straight path: 30–200 cycles with entry and exit), a SAMPLE
-    of 23 bytes leaving in 23 interrupts and the one that finds the ring empty, and the load at 100 bytes per ms
-    each way is 100 × (received + sent)."""
+    one USART2 interrupt per byte received (a short straight path: 30–200 cycles with entry and exit), the tick's
+    SAMPLE sent by DMA with no USART interrupt and one DMA interrupt at the transfer's end, and the load with 100
+    bytes received per ms and a transfer a ms is 100 × received + the DMA interrupt."""
     res = subprocess.run([sys.executable, str(ROOT / "scripts" / "firmware_uart_load"), str(image)],
                          capture_output=True, text=True, timeout=120, check=False)
     assert res.returncode == 0, res.stderr
-    m = re.search(r"interrupt (\d+) per byte received, (\d+) per byte sent; .* in (\d+) interrupts\)\n.*: (\d+) cycles "
-                  r"per ms", res.stdout)
+    m = re.search(r"interrupt (\d+) per byte received; bytes sent by DMA, (\d+) per transfer \((\d+) DMA interrupt\);"
+                  r" .* in (\d+) USART interrupts\)\n.*: (\d+) cycles per ms", res.stdout)
     assert m, res.stdout
-    rx, tx, calls, load = (int(g) for g in m.groups())
-    assert 30 <= rx <= 200 and 30 <= tx <= 200 and calls == 24 and load == 100 * (rx + tx)
+    rx, dma, dma_calls, usart_calls, load = (int(g) for g in m.groups())
+    assert 30 <= rx <= 200 and 24 <= dma <= 200 and dma_calls == 1 and usart_calls == 0 and load == 100 * rx + dma
+
+
+def test_frames_queued_while_the_line_is_busy_leave_when_the_transfer_ends(image: Path) -> None:
+    """The UART sends by DMA, one transfer per tick. At 2 kHz the handshake tick's HELLO_ACK, STATUS and SAMPLE 0
+    (106 bytes, 1.06 ms on the line) outlast two periods: the SAMPLEs of those ticks wait in the other buffer and
+    leave in one transfer the moment the first ends (the stream's interrupt), not at a later tick; every frame
+    arrives once, in order, with no TX_OVERFLOW."""
+    mcu, dec = _streaming(image)
+    mcu.receive(encode(Config(2000, 20)))
+    mcu.advance_to(mcu.next_tick_ns())  # HELLO, CONFIG: HELLO_ACK + STATUS + SAMPLE 0 in one transfer
+    first_end = mcu.dma.done_ns
+    assert first_end is not None and mcu.dma.transfers == 1
+    t0 = mcu.clock.now_ns
+    assert first_end - t0 == 106 * 10_000  # 10 bits a byte at 1 Mbaud
+    mcu.advance_to(t0 + 1_000_000)  # ticks at +0.5 and +1.0 ms: the line still busy
+    assert mcu.dma.transfers == 1
+    sent = len(mcu.tx)
+    mcu.advance_to(first_end)  # the transfer ends: its interrupt starts the queued SAMPLEs 1 and 2
+    assert mcu.dma.transfers == 2 and len(mcu.tx) == sent + 2 * 23
+    mcu.advance_to(t0 + 10_000_000)
+    msgs = dec.feed(bytes(mcu.tx))
+    assert [type(m).__name__ for m in msgs[:3]] == ["HelloAck", "Status", "Sample"]
+    samples = [m for m in msgs if isinstance(m, Sample)]
+    assert [s.seq for s in samples] == list(range(len(samples))) and len(samples) == 21
+    assert not any(s.status & StatusFlags.TX_OVERFLOW for s in samples)
 
 
 def _word(mcu, symbol: str) -> int:  # type: ignore[no-untyped-def]

@@ -37,6 +37,7 @@ from hil_mock.board_model.peripherals import (
     IRQ_USART2,
     Adc,
     Clock,
+    Dma,
     Flash,
     Gpio,
     Iwdg,
@@ -135,10 +136,11 @@ class Stm32f401:
         self.tim2.encoder_count = lambda: self.encoder()
         self.tim4.encoder_count = lambda: self.theta_encoder()
         self.usart = Usart(self.raise_irq, self.tx)
+        self.dma = Dma(self.clock, self.usart, self._sram, 42_000_000, self.raise_irq)
         self.iwdg = Iwdg(self.clock)
         self.flash = Flash()
         periph: list[Peripheral] = [self.rcc, self.gpioa, self.gpiob, self.tim1, self.tim2, self.tim4, self.tim5, self.adc,
-                                    self.usart, self.iwdg, self.flash]
+                                    self.usart, self.dma, self.iwdg, self.flash]
         self._by_page = {p.base >> 10: p for p in periph}
         self._by_page[0x40012300 >> 10] = self.adc  # ADC common registers (ADC_CCR) share ADC1's model
         self.nvic_enabled = [False] * IRQ_COUNT
@@ -177,6 +179,12 @@ class Stm32f401:
                 uc.hook_add(UC_HOOK_CODE, self._on_wfi, begin=addr, end=addr)
         for addr in self._stalls:
             uc.hook_add(UC_HOOK_CODE, self._on_stall, begin=addr, end=addr)
+
+    def _sram(self, addr: int, n: int) -> bytes:
+        """What a DMA stream reads: ``n`` bytes of SRAM at ``addr`` (anything else is an error)."""
+        if not RAM_BASE <= addr <= RAM_BASE + RAM_SIZE - n:
+            raise ModelError(f"board model: a DMA stream reads 0x{addr:08X}..+{n}, outside the SRAM")
+        return bytes(self.uc.mem_read(addr, n))
 
     @staticmethod
     def _no_theta_encoder() -> int:
@@ -466,7 +474,8 @@ class Stm32f401:
             frozen = self._frozen()
             t_upd = None if frozen["TIM5"] else self.tim5.next_update_ns()
             t_wdg = None if frozen["IWDG"] else self.iwdg.expires_ns()
-            t_next = min(t for t in (t_upd, t_wdg, t_ns + 1) if t is not None)
+            t_dma = self.dma.done_ns
+            t_next = min(t for t in (t_upd, t_wdg, t_dma, t_ns + 1) if t is not None)
             if t_next > t_ns:
                 break
             self._move_to(max(self.clock.now_ns, t_next))  # a watchdog that expired inside a stalled handler
@@ -475,6 +484,12 @@ class Stm32f401:
                 self.halted = False
                 self.reset("watchdog")
                 continue
+            if t_dma is not None and t_next == t_dma:  # a transfer's last byte left: its interrupt
+                self.dma.complete()
+                if not self.halted:
+                    self.deliver()
+                if t_next != t_upd:  # an update due at the same instant follows (its time is not asked again:
+                    continue  # at the update's instant the count has reached ARR + 1)
             self.tim5.update_event(t_next)
             if not self.halted:
                 self.deliver()

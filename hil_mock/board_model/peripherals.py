@@ -8,12 +8,14 @@ silicon would show at that instant (the CPU itself is modelled as infinitely fas
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 TIMER_HZ = 84_000_000  # TIM2/5 kernel clock with APB1 at 42 MHz (×2), TIM1's with APB2 at 84 MHz: BOARD_TIMER_HZ
 LSI_HZ = 32_000  # the IWDG's clock (nominal; RM0368 gives 17–47 kHz)
-IRQ_TIM5, IRQ_USART2 = 50, 38
+IRQ_TIM5, IRQ_USART2, IRQ_DMA1_STREAM6 = 50, 38, 17
+USART2_DR = 0x40004404
 
 
 class ModelError(RuntimeError):
@@ -211,9 +213,12 @@ class Timer(Peripheral):
         """When the next update event happens (None: not counting)."""
         if not self.counting():
             return None
-        cnt = self.count()
+        tick = self.tick_ns()
+        if (self.clock.now_ns - self.t0_ns) / tick < self.arr_active + 1:  # from the period's start: the same instant
+            return max(self.t0_ns + round((self.arr_active + 1) * tick), self.clock.now_ns + 1)  # whenever it is asked
+        cnt = self.count()  # past ARR (a lower ARR written without preload): on to the wrap
         ticks = self.arr_active + 1 - cnt if cnt <= self.arr_active else self.mask + 1 - cnt + self.arr_active + 1
-        return self.clock.now_ns + max(1, round(ticks * self.tick_ns()))
+        return self.clock.now_ns + max(1, round(ticks * tick))
 
     def sync(self) -> None:
         """Update events of a timer without interrupt (TIM1's PWM period) up to now: the preloads transfer."""
@@ -357,6 +362,13 @@ class Usart(Peripheral):
             self._sr_read = False
         return v
 
+    def dma_send(self, data: bytes) -> None:
+        """Bytes a DMA stream writes to DR on the USART's transmit requests (CR3 DMAT)."""
+        if not self.regs[self.CR3] & (1 << 7):
+            raise ModelError("board model: a DMA stream writes USART2_DR, and USART2_CR3 DMAT is clear (no requests)")
+        for byte in data:
+            self.write(self.DR, byte)
+
     def write(self, off: int, value: int) -> None:
         if off == self.DR:
             if not self.regs[self.CR1] & (1 << 13) or not self.regs[self.CR1] & (1 << 3):
@@ -369,6 +381,89 @@ class Usart(Peripheral):
         super().write(off, value)
         if off == self.CR1 and self.line():
             self.raise_irq(IRQ_USART2)
+
+
+class Dma(Peripheral):
+    """DMA1 with stream 6 only (channel 4: USART2_TX), memory → USART2_DR, byte-wide, direct mode. Enabling the stream
+    hands its NDTR bytes to the USART at once (the USART model sends without byte timing); the stream then stays
+    enabled for their time on the line (10 bits a byte at USART2's baud rate, NDTR counting down), clears EN, sets
+    TCIF6 and raises its interrupt (TCIE). Any other stream, mode or a reconfiguration while enabled is an error."""
+
+    name = "DMA1"
+    clock_bit = ("AHB1ENR", 21)
+    LISR, HISR, LIFCR, HIFCR = 0x00, 0x04, 0x08, 0x0C
+    S6CR, S6NDTR, S6PAR, S6M0AR, S6M1AR, S6FCR = 0xA0, 0xA4, 0xA8, 0xAC, 0xB0, 0xB4
+    EN, TCIE, TCIF6 = 1 << 0, 1 << 4, 1 << 21
+    CR_ALLOWED = (7 << 25) | (1 << 10) | (3 << 6) | (1 << 4) | 1  # CHSEL, MINC, DIR, TCIE, EN
+
+    def __init__(self, clock: Clock, usart: Usart, memory: Callable[[int, int], bytes], apb1_hz: int,
+                 raise_irq: Callable[[int], None]) -> None:
+        super().__init__(0x40026000, {self.LISR: 0, self.HISR: 0, self.LIFCR: 0, self.HIFCR: 0, self.S6CR: 0,
+                                      self.S6NDTR: 0, self.S6PAR: 0, self.S6M0AR: 0, self.S6M1AR: 0, self.S6FCR: 0x21})
+        self.clock = clock
+        self.usart = usart
+        self.memory = memory
+        self.apb1_hz = apb1_hz
+        self.raise_irq = raise_irq
+        self.start_ns = 0
+        self.done_ns: int | None = None  # the running transfer's end
+        self.transfers = 0
+
+    def _byte_ns(self) -> float:
+        brr = self.usart.regs[Usart.BRR]
+        if not brr:
+            raise ModelError("board model: DMA to USART2 with its baud rate (BRR) unset")
+        return 10 * brr * 1e9 / self.apb1_hz
+
+    def read(self, off: int) -> int:
+        v = super().read(off)
+        if off == self.S6NDTR and self.done_ns is not None:  # bytes not yet on the line
+            left = self.done_ns - self.clock.now_ns
+            v = min(v, math.ceil(left / self._byte_ns())) if left > 0 else 0
+        elif off in (self.LIFCR, self.HIFCR):
+            v = 0
+        return v
+
+    def write(self, off: int, value: int) -> None:
+        if off in (self.LIFCR, self.HIFCR):  # write 1 to clear the matching ISR flags
+            isr = self.LISR if off == self.LIFCR else self.HISR
+            self.regs[isr] &= ~value
+            return
+        if off in (self.LISR, self.HISR):
+            raise ModelError(f"board model: {self.reg_name(off)} is read-only (clear its flags through the IFCR)")
+        if off in (self.S6CR, self.S6NDTR, self.S6PAR, self.S6M0AR, self.S6M1AR, self.S6FCR):
+            if self.regs[self.S6CR] & self.EN:
+                raise ModelError(f"board model: {self.reg_name(off)} written while stream 6 is enabled (RM0368: "
+                                 "write-protected until EN reads 0)")
+            super().write(off, value)
+            if off == self.S6CR and value & self.EN:
+                self._start(value)
+            return
+        raise self.unknown(off, "write")
+
+    def _start(self, cr: int) -> None:
+        if cr & ~self.CR_ALLOWED or cr >> 25 & 7 != 4 or cr >> 6 & 3 != 1 or not cr & (1 << 10):
+            raise ModelError(f"board model: DMA1 stream 6 enabled with CR 0x{cr:08X}; the model has channel 4 "
+                             "(USART2_TX), memory to peripheral, memory increment, byte-wide, direct mode only")
+        if self.regs[self.S6PAR] != USART2_DR:
+            raise ModelError(f"board model: DMA1 stream 6 writes 0x{self.regs[self.S6PAR]:08X}; the model has "
+                             "USART2_DR only")
+        if self.regs[self.HISR] & (0x3D << 16):
+            raise ModelError("board model: DMA1 stream 6 enabled with its HISR flags set (RM0368: clear them first)")
+        n = self.regs[self.S6NDTR] & 0xFFFF
+        self.usart.dma_send(self.memory(self.regs[self.S6M0AR], n))
+        self.start_ns = self.clock.now_ns
+        self.done_ns = self.clock.now_ns + round(n * self._byte_ns())
+        self.transfers += 1
+
+    def complete(self) -> None:
+        """The last byte has left: EN cleared, NDTR 0, TCIF6, the interrupt if TCIE."""
+        self.done_ns = None
+        self.regs[self.S6NDTR] = 0
+        self.regs[self.S6CR] &= ~self.EN
+        self.regs[self.HISR] |= self.TCIF6
+        if self.regs[self.S6CR] & self.TCIE:
+            self.raise_irq(IRQ_DMA1_STREAM6)
 
 
 class Iwdg(Peripheral):

@@ -1,6 +1,7 @@
 /*
  * bench.c - the worst ticks of the firmware core, for counting their instructions under
- * qemu-system-arm (scripts/build_firmware). The same core, codec and TX ring as the board image,
+ * qemu-system-arm (scripts/build_firmware). The same core and codec as the board image (frames queued into a
+ * byte ring where the board copies them for its DMA: a little dearer than the board),
  * with a HAL of plain variables: sensors at the rails, 100 received bytes per tick (1 Mbaud at
  * 1 kHz), faults latching. bench_mark() brackets each measured tick; the script counts the
  * instructions qemu executes between two marks. It also paints the free stack before the ticks and prints

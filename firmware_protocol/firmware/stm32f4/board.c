@@ -4,7 +4,10 @@
  *   TIM5 update IRQ  the device tick at rate_hz: latch φ, take θ/θ̇ (converted at the update event itself), feed
  *                    the bytes USART2 received to the core, fw_tick (SAMPLE out, COMMAND applied), refresh the
  *                    IWDG; a period that elapsed during the tick is reported as an overrun (fw_skip)
- *   USART2 IRQ       higher priority: received bytes into rx_ring, tx_ring out (1 Mbaud, 8N1)
+ *   USART2 IRQ       higher priority: received bytes into rx_ring, their errors counted (1 Mbaud, 8N1)
+ *   DMA1 stream 6    sends the frames a tick queued (USART2_TX, channel 4), one transfer per tick: the tick's frames go
+ *                    into one of two buffers, started at the tick's end; frames queued while the line is busy with
+ *                    the previous transfer start when it completes (its interrupt, at the tick's priority)
  *   TIM2             quadrature encoder (PA0 = A, PA1 = B), 32-bit count
  *   ADC1 injected    θ on PA4 (IN4), θ̇ on PB0 (IN8), 12 bit, triggered by TIM5's update (TRGO): sampled at the
  *                    period's start whatever the software does, φ read at the handler's first instruction
@@ -17,6 +20,7 @@
  * Only the tick touches the core (fw_t), so it needs no locks. No floating point anywhere here.
  */
 #include <stdint.h>
+#include <string.h> /* memcpy */
 
 #include "board_config.h"
 #include "fw_core.h"
@@ -49,8 +53,12 @@ typedef char hse_divides_to_1_mhz[(BOARD_HSE_HZ == 0u || (BOARD_HSE_HZ % 1000000
 #define PIN_DIR 7u                              /* PA7 */
 #define PWM_TIM TIM1_BASE
 
+#define TX_DMA_BYTES 256u /* one tick's frames: HELLO_ACK + STATUS + SAMPLE are 106 bytes */
+
 struct fw_hal {
-    ring_t rx, tx;
+    ring_t rx;
+    uint8_t tx_fill;        /* the buffer frames are queued into; the other one may be on the line */
+    uint16_t tx_len[2];     /* bytes queued in each buffer */
     int32_t phi;                /* latched at the top of the tick */
     int16_t theta, theta_dot;   /* converted at the tick's update event */
     uint32_t adc_missed;        /* ticks whose conversion never ended (a rail reported instead) */
@@ -61,6 +69,7 @@ struct fw_hal {
 
 static fw_hal_t hal;
 static fw_t fw;
+static uint8_t tx_buf[2][TX_DMA_BYTES];
 /* RCC_CSR's reset flags at start-up (1 << 29: the IWDG reset the board, 1 << 27: power-on, 1 << 26: the reset pin)
  * and what HELLO_ACK reports of them; the receiver's errors the USART reported (bytes lost to an overrun; framing,
  * noise and parity errors), which STATUS reports */
@@ -97,6 +106,7 @@ static fw_board_t board_with_id;
 
 void TIM5_IRQHandler(void);
 void USART2_IRQHandler(void);
+void DMA1_Stream6_IRQHandler(void);
 int main(void);
 
 /* ---- HAL ------------------------------------------------------------------------------------ */
@@ -170,11 +180,31 @@ void hal_actuator_write(fw_hal_t *h, int16_t counts)
 
 uint8_t hal_uart_write(fw_hal_t *h, const uint8_t *data, size_t len)
 {
-    if (!ring_put_all(&h->tx, data, len)) {
+    uint8_t f = h->tx_fill;
+    if (len > TX_DMA_BYTES - h->tx_len[f]) {
         return 0u;
     }
-    USART2_CR1 |= USART_CR1_TXEIE; /* the USART interrupt sends it */
+    memcpy(&tx_buf[f][h->tx_len[f]], data, len);
+    h->tx_len[f] = (uint16_t)(h->tx_len[f] + len);
     return 1u;
+}
+
+/* Start sending the queued frames if the line is free: DMA1 stream 6 takes the filled buffer, the other one takes
+ * the next frames. Called at the end of the tick and by the transfer's completion, both at the tick's priority (no
+ * interrupt between the two, none while the tick queues). */
+static void uart_tx_kick(void)
+{
+    uint8_t f = hal.tx_fill;
+    if (hal.tx_len[f] == 0u || (DMA1_S6CR & DMA_SCR_EN)) {
+        return;
+    }
+    DMA1_HIFCR = DMA_HISR_STREAM6; /* a stream starts with its flags clear */
+    DMA1_S6M0AR = (uint32_t)(uintptr_t)tx_buf[f];
+    DMA1_S6NDTR = hal.tx_len[f];
+    DMA1_S6CR = DMA_SCR_CHSEL_4 | DMA_SCR_MINC | DMA_SCR_DIR_M2P | DMA_SCR_TCIE | DMA_SCR_EN;
+    f ^= 1u;
+    hal.tx_fill = f;
+    hal.tx_len[f] = 0u;
 }
 
 void hal_tick_rate(fw_hal_t *h, uint16_t rate_hz)
@@ -233,6 +263,7 @@ void TIM5_IRQHandler(void)
         fw_rx_byte(&fw, (uint8_t)byte);
     }
     fw_tick(&fw);
+    uart_tx_kick();
     IWDG_KR = 0xAAAAu;
     if (TIM_SR(TIM5_BASE) & TIM_SR_UIF) { /* a whole period went by during this tick: skipped, counted once */
         TIM_SR(TIM5_BASE) = ~TIM_SR_UIF;
@@ -261,14 +292,12 @@ void USART2_IRQHandler(void)
             hal.rx_overflows++;
         }
     }
-    if ((sr & USART_SR_TXE) && (USART2_CR1 & USART_CR1_TXEIE)) {
-        int byte = ring_get(&hal.tx);
-        if (byte < 0) {
-            USART2_CR1 &= ~USART_CR1_TXEIE;
-        } else {
-            USART2_DR = (uint32_t)byte;
-        }
-    }
+}
+
+void DMA1_Stream6_IRQHandler(void)
+{
+    DMA1_HIFCR = DMA_HISR_STREAM6; /* the transfer is complete (the stream has cleared EN) */
+    uart_tx_kick();                /* the frames queued meanwhile */
 }
 
 /* ---- set-up ---------------------------------------------------------------------------------- */
@@ -342,7 +371,7 @@ void board_stop_drive(void)
 
 static void peripherals(void)
 {
-    RCC_AHB1ENR |= RCC_AHB1ENR_GPIOA | RCC_AHB1ENR_GPIOB;
+    RCC_AHB1ENR |= RCC_AHB1ENR_GPIOA | RCC_AHB1ENR_GPIOB | RCC_AHB1ENR_DMA1;
     RCC_APB1ENR |= RCC_APB1ENR_TIM2 | RCC_APB1ENR_TIM5 | RCC_APB1ENR_USART2;
     RCC_APB2ENR |= RCC_APB2ENR_ADC1 | RCC_APB2ENR_TIM1;
 
@@ -398,6 +427,8 @@ static void peripherals(void)
     pin_mode(GPIOA_BASE, 3u, GPIO_MODE_AF, 7u);
     USART2_BRR = (BOARD_SYSCLK_HZ / 2u + BOARD_UART_BAUD / 2u) / BOARD_UART_BAUD;
     USART2_CR1 = USART_CR1_UE | USART_CR1_TE | USART_CR1_RE | USART_CR1_RXNEIE;
+    USART2_CR3 = USART_CR3_DMAT; /* transmit requests go to DMA1 stream 6 */
+    DMA1_S6PAR = (uint32_t)(uintptr_t)&USART2_DR;
 
     /* the tick: TIM5 update at the default rate (fw_init calls hal_tick_rate) */
     TIM_PSC(TIM5_BASE) = 0u;
@@ -406,6 +437,8 @@ static void peripherals(void)
     TIM_DIER(TIM5_BASE) = TIM_DIER_UIE;
     NVIC_IPR8(IRQ_USART2) = 0x40u; /* bytes must not wait for a tick */
     NVIC_IPR8(IRQ_TIM5) = 0x80u;
+    NVIC_IPR8(IRQ_DMA1_STREAM6) = 0x80u; /* the tick's: it never pre-empts the tick queuing frames */
+    NVIC_ISER(IRQ_DMA1_STREAM6 / 32u) = 1u << (IRQ_DMA1_STREAM6 % 32u);
     NVIC_ISER(IRQ_USART2 / 32u) = 1u << (IRQ_USART2 % 32u);
     NVIC_ISER(IRQ_TIM5 / 32u) = 1u << (IRQ_TIM5 % 32u);
 

@@ -39,6 +39,7 @@
 #define RCC_CFGR_PPRE1_DIV2 (4u << 10)
 #define RCC_AHB1ENR_GPIOA (1u << 0)
 #define RCC_AHB1ENR_GPIOB (1u << 1)
+#define RCC_AHB1ENR_DMA1 (1u << 21)
 #define RCC_APB1ENR_TIM2 (1u << 0)
 #define RCC_APB1ENR_TIM4 (1u << 2)
 #define RCC_APB1ENR_TIM5 (1u << 3)
@@ -109,11 +110,29 @@
 #define ADC_CR2_JEXTSEL_TIM5_TRGO (11u << 16)
 
 /* USART2 */
+/* DMA1 stream 6, channel 4: USART2_TX (RM0368 table 27) */
+#define DMA1_BASE 0x40026000u
+#define DMA1_HISR REG32(DMA1_BASE + 0x04u)
+#define DMA1_HIFCR REG32(DMA1_BASE + 0x0Cu)
+#define DMA1_S6CR REG32(DMA1_BASE + 0xA0u)
+#define DMA1_S6NDTR REG32(DMA1_BASE + 0xA4u)
+#define DMA1_S6PAR REG32(DMA1_BASE + 0xA8u)
+#define DMA1_S6M0AR REG32(DMA1_BASE + 0xACu)
+#define DMA_HISR_STREAM6 (0x3Du << 16) /* FEIF6, DMEIF6, TEIF6, HTIF6, TCIF6 */
+#define DMA_HISR_TCIF6 (1u << 21)
+#define DMA_SCR_EN (1u << 0)
+#define DMA_SCR_TCIE (1u << 4)
+#define DMA_SCR_DIR_M2P (1u << 6)
+#define DMA_SCR_MINC (1u << 10)
+#define DMA_SCR_CHSEL_4 (4u << 25)
+
 #define USART2_BASE 0x40004400u
 #define USART2_SR REG32(USART2_BASE + 0x00u)
 #define USART2_DR REG32(USART2_BASE + 0x04u)
 #define USART2_BRR REG32(USART2_BASE + 0x08u)
 #define USART2_CR1 REG32(USART2_BASE + 0x0Cu)
+#define USART2_CR3 REG32(USART2_BASE + 0x14u)
+#define USART_CR3_DMAT (1u << 7)
 #define USART_SR_PE (1u << 0)
 #define USART_SR_FE (1u << 1)
 #define USART_SR_NF (1u << 2)
@@ -149,6 +168,7 @@
 #define DBG_IWDG_STOP (1u << 12)
 #define DBG_TIM1_STOP (1u << 0)
 
+#define IRQ_DMA1_STREAM6 17u
 #define IRQ_TIM2 28u
 #define IRQ_TIM3 29u
 #define IRQ_USART2 38u

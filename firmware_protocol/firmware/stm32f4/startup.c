@@ -15,6 +15,7 @@ void board_stop_drive(void);
 void SysTick_Handler(void) __attribute__((weak, alias("Default_Handler")));
 void TIM5_IRQHandler(void) __attribute__((weak, alias("Default_Handler")));
 void USART2_IRQHandler(void) __attribute__((weak, alias("Default_Handler")));
+void DMA1_Stream6_IRQHandler(void) __attribute__((weak, alias("Default_Handler")));
 
 void Reset_Handler(void)
 {
@@ -57,7 +58,9 @@ __attribute__((section(".isr_vector"), used)) const vector_table_t vector_table 
     &_estack,
     {
         Reset_Handler, D2, D4, D4, D2, D, SysTick_Handler, /* exceptions 1..15 */
-        D32, D4, D2,                /* IRQ 0..37 */
+        D16, D,                     /* IRQ 0..16 */
+        DMA1_Stream6_IRQHandler,    /* IRQ 17 */
+        D16, D4,                    /* IRQ 18..37 */
         USART2_IRQHandler,          /* IRQ 38 */
         D8, D2, D,                  /* IRQ 39..49 */
         TIM5_IRQHandler,            /* IRQ 50 */
