@@ -100,6 +100,16 @@ def finer(prep: Prepared, m: int) -> Prepared:
                    theta_dot_f=None if prep.theta_dot_f is None else up(prep.theta_dot_f))
 
 
+def _residual_as_selected(ctx: Context, equation: str, clean: Prepared, sigma: float, sigma_fine: float) -> np.ndarray:
+    """The equation's state part of the residual on ``clean`` along the selection's path (Context.inverse_dynamics,
+    plus the back-EMF damping of a voltage-driven arm)."""
+    fine = clean.states(sigma_fine)
+    s = clean.states(sigma, fine)
+    c = replace(ctx, prep=clean, fine=fine, **{"arm" if equation == ARM else "pend": s}, _held={}, _tau0={}, _columns={})
+    out = c.inverse_dynamics(equation)
+    return out + ctx.back_emf * s.phi_dot if equation == ARM else out
+
+
 def _edge_safe(f: GaussianFilter, x: np.ndarray) -> np.ndarray:
     y = f.apply(x, 0)
     h = f.half
@@ -146,8 +156,15 @@ def processing(ctx: Context, equation: str, clean: Prepared, base: np.ndarray) -
     differ by about (ω·dt)²/12 on a motion at ω: on a 10 rad/s swing at 50 Hz a residual that follows θ like a 3 %
     error of the pendulum's inertia J2. The sharp reference is therefore taken on a grid fine enough for
     its own kernel (``finer``), where that part vanishes; at the rates whose step is under PROCESSING_SIGMA /
-    PROCESSING_SAMPLES the grid is the recording's."""
-    f = ctx.states(equation).filt
+    PROCESSING_SAMPLES the grid is the recording's.
+
+    The error is that of the path the equation's residual takes (Context.inverse_dynamics: eq. 4 on the lightly
+    smoothed states F, then the kernel K, with F's curvature correction), not of eq. 4 on the wide states K∘F: on a
+    swing-up the latter's bias is tens of % of the torque scale, a bias the residual does not carry."""
+    s = ctx.states(equation)
+    f = s.filt
+    if s.fine is not None and s.outer is not None:  # the residual's own path: K * ID(F's states), curvature-corrected
+        base = _residual_as_selected(ctx, equation, clean, s.outer.sigma, s.fine.filt.sigma)
     m = max(1, math.ceil(PROCESSING_SAMPLES * clean.dt / PROCESSING_SIGMA - 1e-6))
     sharp = _residual(ctx, equation, finer(clean, m).states(PROCESSING_SIGMA))[::m]
     out = base - GaussianFilter.build(f.sigma, clean.dt).apply(sharp, 0)
