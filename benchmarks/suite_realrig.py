@@ -18,7 +18,7 @@ from furuta_rt.config import RigConfig, load_rig
 from furuta_rt.model.effects import effects_from_assignments
 from furuta_rt.model.rig import RigModel
 from furuta_rt.recording import Recording
-from furuta_rt.sim.simulator import Simulator
+from furuta_rt.sim.compiled import fast_simulator
 
 HELD_ARM = "arm_coulomb.Fc=0.5"  # a dry friction far above the pendulum's reaction: the arm stays put
 
@@ -27,7 +27,7 @@ def swing_recording(rig: RigConfig, effects: list[str], rate: float, amplitude: 
                     seed: int = 0) -> Recording:
     """The pendulum released ``amplitude`` rad from hanging, zero command, sampled at ``rate`` Hz through the rig's
     own sensors."""
-    sim = Simulator(RigModel.from_config(rig, effects_from_assignments(effects)), rate, 5000.0, seed=seed,
+    sim = fast_simulator(RigModel.from_config(rig, effects_from_assignments(effects)), rate, 5000.0, seed=seed,
                     x0=(math.pi - amplitude, 0.0, 0.0, 0.0))
     n = round(seconds * rate)
     cols = np.empty((n, 4))
@@ -43,7 +43,7 @@ def driven_recording(rig: RigConfig, effects: list[str], rate: float, seconds: f
     """The rig from hanging at rest under the open-loop ``command(t)`` (volts), sampled at ``rate`` Hz; the command
     logged at a tick acts from the next one (the config's command_delay_ticks = 1)."""
     assert rig.control.command_delay_ticks == 1
-    sim = Simulator(RigModel.from_config(rig, effects_from_assignments(effects)), rate, 5000.0, seed=seed,
+    sim = fast_simulator(RigModel.from_config(rig, effects_from_assignments(effects)), rate, 5000.0, seed=seed,
                     x0=(math.pi, 0.0, 0.0, 0.0))
     n = round(seconds * rate)
     cols = np.empty((n, 5))

@@ -249,12 +249,12 @@ def test_free_decay_tells_viscous_and_coulomb_pivot_friction_apart() -> None:
     from furuta_rt.diagnose.stages.swing import is_free_swing
     from furuta_rt.model.effects import effects_from_assignments
     from furuta_rt.model.rig import RigModel
-    from furuta_rt.sim.simulator import Simulator
+    from furuta_rt.sim.compiled import fast_simulator
 
     rig = load_rig("thesis")
     rig = quiet(rig).model_copy(update={"sensors": quiet(rig).sensors.model_copy(update={"bessel_cutoff": None})})
     eff = effects_from_assignments(["pendulum_viscous.bp=2e-4", "pendulum_coulomb.Fc=3e-4", "arm_coulomb.Fc=0.5"])
-    sim = Simulator(RigModel.from_config(rig, eff), 500.0, 5000.0, x0=(math.pi - 1.5, 0.0, 0.0, 0.0))
+    sim = fast_simulator(RigModel.from_config(rig, eff), 500.0, 5000.0, x0=(math.pi - 1.5, 0.0, 0.0, 0.0))
     n = 25 * 500
     cols = np.empty((n, 3))
     lsb = 2 * math.pi / 8192  # an encoder on the pendulum (the ADC path of the thesis rig ends at ±π)

@@ -14,6 +14,7 @@ from furuta_rt.model.effects import Effects, effects_from_assignments
 from furuta_rt.model.rig import RigModel
 from furuta_rt.recording import Recording
 from furuta_rt.sim.closed_loop import run_closed_loop
+from furuta_rt.sim.compiled import fast_simulator
 from furuta_rt.sim.simulator import Simulator
 
 
@@ -109,7 +110,7 @@ def _open_loop(rig, effects: list[str], volts: np.ndarray) -> Recording:
     ±π), the command of tick k acting from tick k+1 (the rig's command_delay_ticks = 1) unless a command_latency says
     otherwise."""
     model = RigModel.from_config(rig, effects_from_assignments(effects))
-    sim = Simulator(model, rig.control.rate_hz, 5000.0, x0=(math.pi, 0.0, 0.0, 0.0))
+    sim = fast_simulator(model, rig.control.rate_hz, 5000.0, x0=(math.pi, 0.0, 0.0, 0.0))
     lsb = 2 * math.pi / 8192
     cols = np.empty((len(volts), 3))
     for k, v in enumerate(volts):

@@ -24,7 +24,7 @@ from furuta_rt.diagnose.regression.states import GaussianFilter, canonical_angle
 from furuta_rt.diagnose.stages.stickslip import assess
 from furuta_rt.model.rig import RigModel
 from furuta_rt.recording import Recording
-from furuta_rt.sim.simulator import Simulator
+from furuta_rt.sim.compiled import fast_simulator
 
 FAST = Options(closed_loop=False, max_windows=15)
 RIGS = Path(__file__).resolve().parent.parent / "furuta_rt" / "rigs"
@@ -59,7 +59,7 @@ def large_motion(rig, kind: str, seconds: float = 16.0, seed: int = 0) -> Record
     command_delay_ticks = 1); θ and φ quantised to the encoder's counts."""
     model = RigModel.from_config(rig)
     rate = rig.control.rate_hz
-    sim = Simulator(model, rate, 5000.0, seed=seed, x0=(math.pi - 0.05, 0.0, 0.0, 0.0))
+    sim = fast_simulator(model, rate, 5000.0, seed=seed, x0=(math.pi - 0.05, 0.0, 0.0, 0.0))
     n = round(seconds * rate)
     lsb = 2 * math.pi / rig.sensors.encoder_counts_per_rev
     p = model.plant.p

@@ -20,7 +20,7 @@ from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
 from furuta_rt.recording import Recording
 from furuta_rt.sim.closed_loop import run_closed_loop
-from furuta_rt.sim.simulator import Simulator
+from furuta_rt.sim.compiled import fast_simulator
 
 
 @pytest.fixture(scope="module")
@@ -130,7 +130,7 @@ def swing_then_still(rig, active: float = 8.0, still: float = 17.0) -> Recording
     """A pendulum hanging and swung by the arm for ``active`` s, then everything at rest (a heavily damped rig with
     the command off): like a swing-up followed by a still tail, from the shared simulator."""
     eff = Effects.model_validate({"pendulum_viscous": {"bp": 0.01}, "arm_viscous": {"Fv": 0.2}})
-    sim = Simulator(RigModel.from_config(rig, eff), rig.control.rate_hz, 2000.0, seed=1, x0=(math.pi - 0.3, 0, 0, 0))
+    sim = fast_simulator(RigModel.from_config(rig, eff), rig.control.rate_hz, 2000.0, seed=1, x0=(math.pi - 0.3, 0, 0, 0))
     n = round((active + still) * rig.control.rate_hz)
     cols = {k: np.empty(n) for k in ("t", "theta", "theta_dot", "phi", "u")}
     for k in range(n):

@@ -14,7 +14,7 @@ from furuta_rt.errors import UserError
 from furuta_rt.io.mapping import load_mapping, read_mapped_csv
 from furuta_rt.io.recordings import read_recording
 from furuta_rt.model.rig import RigModel
-from furuta_rt.sim.simulator import Simulator
+from furuta_rt.sim.compiled import fast_simulator
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "macstepien-furuta"
 STEPS = {"01": 0.1, "0575": 0.575, "2V": 2.0, "3V": 3.0, "4V": 4.0, "5V": 5.0, "6V": 6.0}
@@ -68,7 +68,7 @@ def test_sign_convention_matches_the_plant() -> None:
     """From hanging, a positive arm command swings θ − π with the same sign as φ in eq. 4 (simulated
     macstepien rig), and the mapped hardware data does the same (the coupling sign γ cos θ < 0 at π)."""
     rig = load_rig("macstepien")
-    sim = Simulator(RigModel.from_config(rig), 500.0, 5000.0, x0=(math.pi, 0.0, 0.0, 0.0))
+    sim = fast_simulator(RigModel.from_config(rig), 500.0, 5000.0, x0=(math.pi, 0.0, 0.0, 0.0))
     sim.set_command(2.0)
     sim.advance(25)
     ratio_sim = (sim.theta - math.pi) / sim.phi

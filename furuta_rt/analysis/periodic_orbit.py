@@ -6,7 +6,8 @@ the pendulum never sticks, while φ̇ = 0 holds over whole stick phases). The re
 loop state on the section to the state at its next crossing (m crossings if the orbit crosses more
 than once per period); the orbit is the fixed point P(x*) = x*, found by Newton's method with a
 finite-difference Jacobian, started from a short simulation. Its eigenvalues are the orbit's Floquet
-multipliers. Every trajectory is integrated by the core Simulator (implicit Coulomb stick/slip).
+multipliers. Every trajectory is integrated by the core Simulator (implicit Coulomb stick/slip; its
+substeps in C where furuta_rt.sim.compiled covers the model).
 
 Two loops are supported, both deterministic (no sensor noise, no quantisation):
 
@@ -28,7 +29,7 @@ from furuta_rt.config import CompMode, RigConfig
 from furuta_rt.controller.controller import Controller, Measurement
 from furuta_rt.model.effects import Effects
 from furuta_rt.model.rig import RigModel
-from furuta_rt.sim.simulator import Simulator
+from furuta_rt.sim.compiled import fast_simulator
 
 STATE_LABELS = ("theta", "theta_dot", "phi", "phi_dot")
 
@@ -43,7 +44,7 @@ class IdealLoop:
         self, rig: RigConfig, gains: np.ndarray | list[float], effects: Effects | None = None, rate_hz: float = 10_000.0
     ) -> None:
         model = replace(RigModel.from_config(rig, effects), bessel=None, theta_noise=0.0, theta_dot_noise=0.0)
-        self.sim = Simulator(model, rate_hz, rate_hz)
+        self.sim = fast_simulator(model, rate_hz, rate_hz)
         self.gains = np.asarray(gains, dtype=float)
         # φ is cyclic (the dynamics do not depend on it) without φ feedback or cable spring: an orbit
         # may then drift in φ, and φ is left out of the periodicity condition.
@@ -86,7 +87,7 @@ class SampledLoop:
         mode: CompMode = "none",
     ) -> None:
         model = replace(RigModel.from_config(rig, effects), theta_noise=0.0, theta_dot_noise=0.0)
-        self.sim = Simulator(model, rig.control.rate_hz)
+        self.sim = fast_simulator(model, rig.control.rate_hz)
         self.ctrl = Controller.from_rig(rig, mode=mode, gains=gains)
         self.ctrl.reset(0.0)
         self._comp_state = self.ctrl.compensator.mode == "lugre"

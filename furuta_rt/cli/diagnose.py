@@ -149,15 +149,14 @@ def with_theta_filter(rig: RigConfig, text: str) -> RigConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    from furuta_rt.diagnose.report.render import OUTPUTS, check_directory, text, write_report
-    from furuta_rt.diagnose.segments import SegmentedDiagnosis, diagnose_recording, split_at_gaps
-
     if len(args.recording) > 1:
         return run_joint(args)
     args.recording = args.recording[0]
     # every output claimed before the diagnosis: a user's files are never overwritten, and a refusal comes first
     claim_outputs([("--json", None if args.json == "-" else args.json)], force=args.force, inputs=[args.recording])
     if args.report:
+        from furuta_rt.diagnose.report.render import OUTPUTS, check_directory
+
         check_directory(Path(args.report))
         claim_directory("--report", args.report, OUTPUTS, force=args.force)
         if args.json and Path(args.json).name in OUTPUTS and Path(args.json).resolve().parent == Path(args.report).resolve():
@@ -168,6 +167,10 @@ def run(args: argparse.Namespace) -> int:
     require_plausible(rig, args.config or f"the rig {rig.name!r} of {args.recording}")
     if args.theta_filter is not None:
         rig = with_theta_filter(rig, args.theta_filter)
+    # the diagnosis (scipy, matplotlib: seconds to import) once the input is read: a bad one is refused at once
+    from furuta_rt.diagnose.report.render import OUTPUTS, text, write_report
+    from furuta_rt.diagnose.segments import SegmentedDiagnosis, diagnose_recording, split_at_gaps
+
     split = split_at_gaps(rec)  # a recording with gaps is diagnosed as the stretches between them
     if args.report and len(split.segments) > 1:
         raise UserError(f"--report writes the page of one continuous recording; {args.recording} splits into "
