@@ -304,18 +304,28 @@ def test_link_loss_trips_with_zero(rig: RigConfig) -> None:
 
 
 def test_sigint_stops_with_zero_and_restores_the_handler(rig: RigConfig) -> None:
+    """The loop's own handler takes a SIGINT while it runs (u = 0 first) and the handler it found is back after.
+    The handler before the run is the test's own: the worker process's may be anything an earlier test left."""
+
+    def before(_signum: int, _frame: object) -> None:
+        raise AssertionError("SIGINT reached the handler from before the run, not the loop's")
+
     def interrupt(dev: SimDevice) -> None:
         if dev.seq == 300 and not dev.queue:
             os.kill(os.getpid(), signal.SIGINT)
 
-    dev = SimDevice(rig, on_read=interrupt)
-    loop, sink = make_loop(rig, dev, duration=10.0)
-    r = loop.run()
-    assert r.end == "operator_stop" and r.trip_reason == "operator_stop"
-    assert dev.writes[-1] == ("write", 300, 0, 0, True) and dev.ops[-1] == ("stop",)
-    assert any("operator stop (SIGINT)" in e for e in sink.events())
-    assert _output_when_told(dev, "operator stop") == 0.0
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    previous = signal.signal(signal.SIGINT, before)
+    try:
+        dev = SimDevice(rig, on_read=interrupt)
+        loop, sink = make_loop(rig, dev, duration=10.0)
+        r = loop.run()
+        assert r.end == "operator_stop" and r.trip_reason == "operator_stop"
+        assert dev.writes[-1] == ("write", 300, 0, 0, True) and dev.ops[-1] == ("stop",)
+        assert any("operator stop (SIGINT)" in e for e in sink.events())
+        assert _output_when_told(dev, "operator stop") == 0.0
+        assert signal.getsignal(signal.SIGINT) is before
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def test_stale_samples_skip_whole_periods_without_commands(rig: RigConfig) -> None:
