@@ -202,13 +202,6 @@ def run_joint(args: argparse.Namespace) -> int:
         raise UserError("a recording is given twice; a joint fit needs distinct recordings")
     claim_outputs([("--json", None if args.json == "-" else args.json)], force=args.force, inputs=args.recording)
     loaded = [load(path, args.config, args.mapping, args.map) for path in args.recording]
-    from furuta_rt.diagnose.segments import split_at_gaps
-
-    for path, (rec, _) in zip(args.recording, loaded, strict=True):
-        if gaps := split_at_gaps(rec).gaps:
-            raise UserError(f"{path} has {gaps} gap(s) (3 or more samples missing): a joint fit "
-                            "takes continuous recordings; diagnose it alone, which fits the stretches between its gaps "
-                            "together")
     rig = loaded[0][1]
     if args.config is None:  # each log carries its rig: one rig is what a joint fit means
         for path, (_, other) in zip(args.recording[1:], loaded[1:], strict=True):

@@ -8,7 +8,9 @@ and backward passes; not the latency stage, which reads one recording's time lin
 (stages.lookalikes.check_lookalikes: the paired t of the held-out block errors, the κ test for gain ↔ inertia, the rest
 test for a bias; stages.lookalikes.swapped where the look-alike wins) on the stack. The physical parameters are shared;
 a nuisance term that belongs to a run, not to the rig, gets one column per recording: the arm encoder's zero is set
-when a run starts, so a cable spring's −k(φ − φ0) has its constant k·φ0 per recording.
+when a run starts, so a cable spring's −k(φ − φ0) has its constant k·φ0 per recording. A recording with gaps
+(furuta_rt.diagnose.segments: a busy machine's dropped samples) takes part as the stretches between them, each
+prepared alone, the per-recording column shared by its stretches.
 
 Each recording is also diagnosed alone (the whole pipeline), and every look-alike a single recording left
 unresolved is reported with what the joint fit made of it: resolved (which one, the test that decided), none of the
@@ -26,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from furuta_rt.config import RigConfig
-from furuta_rt.diagnose.engine import Diagnosis, diagnose, plain
+from furuta_rt.diagnose.engine import Diagnosis, plain
 from furuta_rt.diagnose.regression.fitting import Blocks
 from furuta_rt.diagnose.regression.library import ARM, PEND, Context, InputPath
 from furuta_rt.diagnose.regression.selection import EquationModel, Spec
@@ -108,9 +110,11 @@ class JointEquationModel(EquationModel):
     """One equation of eq. 4 over several recordings: rows stacked, each recording's time blocks kept (the
     held-out blocks never span two recordings), columns shared but for PER_RECORDING ones."""
 
-    def __init__(self, members: list[EquationModel], per_member: dict[str, tuple[int, ...]] | None = None) -> None:
+    def __init__(self, members: list[EquationModel], per_member: dict[str, tuple[int, ...]] | None = None,
+                 groups: list[int] | None = None) -> None:
         self.members = members
         self.per_member = per_member  # None: PER_RECORDING; {} for segments of one recording (one encoder zero)
+        self.groups = groups or list(range(len(members)))  # the recording each member (a stretch of it) belongs to
         self.ctx = JointContext([m.ctx for m in members])  # type: ignore[assignment]
         self.equation = members[0].equation
         self.th = members[0].th
@@ -133,7 +137,7 @@ class JointEquationModel(EquationModel):
 
     def design(self, spec: Spec) -> tuple[np.ndarray, list[tuple[str, slice]]]:
         """The members' columns stacked; a PER_RECORDING column is the first recording's in place (its owner's slice
-        unchanged) and one more column per further recording at the end, zero outside that recording."""
+        unchanged) and one more column per further recording at the end, zero outside that recording's members."""
         parts = [m.design(spec) for m in self.members]
         X = np.concatenate([p[0] for p in parts], axis=0)
         owners = parts[0][1]
@@ -141,11 +145,12 @@ class JointEquationModel(EquationModel):
         for name, sl in owners:
             for j in (PER_RECORDING if self.per_member is None else self.per_member).get(name, ()):
                 col = sl.start + j
-                for i in range(1, len(self.members)):
+                for g in sorted(set(self.groups) - {self.groups[0]}):
                     own = np.zeros(X.shape[0])
-                    a, b = self.offsets[i], self.offsets[i] + self.members[i].ctx.prep.n
-                    own[a:b] = X[a:b, col]
-                    X[a:b, col] = 0.0
+                    for i in (i for i, gi in enumerate(self.groups) if gi == g):
+                        a, b = self.offsets[i], self.offsets[i] + self.members[i].ctx.prep.n
+                        own[a:b] = X[a:b, col]
+                        X[a:b, col] = 0.0
                     extra.append(own)
         if extra:
             X = np.column_stack([X, *extra])
@@ -222,17 +227,19 @@ def needed_factor(entry: dict, opts: Options) -> float:
     return min(out) if out else float("inf")
 
 
-def joint_fit(ctxs: list[Context], opts: Options, notes: list[str], per_member: dict[str, tuple[int, ...]] | None = None
-              ) -> tuple[list[Found], list[dict], list[dict], dict[str, list[int]]]:
+def joint_fit(ctxs: list[Context], opts: Options, notes: list[str], per_member: dict[str, tuple[int, ...]] | None = None,
+              groups: list[int] | None = None) -> tuple[list[Found], list[dict], list[dict], dict[str, list[int]]]:
     """Each equation's selection and the look-alike tests on the members' rows stacked (JointEquationModel): the
-    effects found, the look-alikes left unresolved and told apart, and per equation the rows each member gave."""
+    effects found, the look-alikes left unresolved and told apart, and per equation the rows each member gave (each
+    recording's, its stretches added, with ``groups``: the recording each member is a stretch of)."""
     ems: dict[str, JointEquationModel] = {}
     res: dict[str, EquationResult] = {}
     rows: dict[str, list[int]] = {}
     for eq in (ARM, PEND):
         members = [EquationModel(c, eq, opts.thresholds) for c in ctxs]
-        ems[eq] = JointEquationModel(members, per_member)
-        rows[eq] = [m.n_rows for m in members]
+        ems[eq] = JointEquationModel(members, per_member, groups)
+        by = groups or list(range(len(members)))
+        rows[eq] = [sum(m.n_rows for m, g in zip(members, by, strict=True) if g == k) for k in sorted(set(by))]
         res[eq] = select_in(ems[eq], settle_latency=False)
     ambiguities, lookalikes, swaps = check_lookalikes(ems, res, opts)  # type: ignore[arg-type]
     for eq, alt in swaps.items():  # the look-alike test favours the alternative: it becomes the equation's model
@@ -247,12 +254,22 @@ def diagnose_joint(recordings: list[tuple[str, Recording]], rig: RigConfig, opti
     single diagnoses if already made (same order)."""
     if len(recordings) < 2:
         raise UserError("a joint diagnosis needs two or more recordings")
+    from furuta_rt.diagnose.segments import diagnose_recording, refused, split_at_gaps
+
     opts = options or Options()
     t0 = time.perf_counter()
     notes: list[str] = []
-    singles = singles or [diagnose(rec, rig, opts) for _, rec in recordings]
-    ctxs = [context(rec, rig, opts, []) for _, rec in recordings]
-    found, ambiguities, lookalikes, rows = joint_fit(ctxs, opts, notes)
+    splits = [split_at_gaps(rec) for _, rec in recordings]
+    for (name, _), split in zip(recordings, splits, strict=True):
+        if not split.segments:
+            raise UserError(f"{name}: {refused(split)}")
+        if split.gaps:
+            notes.append(f"{name}: {split.line()}")
+    singles = singles or [diagnose_recording(rec, rig, opts, split)  # type: ignore[misc]
+                          for (_, rec), split in zip(recordings, splits, strict=True)]
+    ctxs = [context(seg, rig, opts, []) for split in splits for seg in split.segments]
+    groups = [k for k, split in enumerate(splits) for _ in split.segments]
+    found, ambiguities, lookalikes, rows = joint_fit(ctxs, opts, notes, groups=groups)
     total_s = sum(c.prep.n * c.prep.dt for c in ctxs)
     for a in ambiguities:
         factor = needed_factor(a, opts)
