@@ -67,3 +67,42 @@ def test_a_command_acts_command_delay_ticks_after_its_sample() -> None:
             path.send_and_advance(0.2 if k == 0 else 0.0)
             speeds.append(abs(sim.phi_dot))
         assert all(s < 1e-12 for s in speeds[:ticks]) and speeds[ticks] > 1e-4, (ticks, speeds)
+
+
+@pytest.mark.parametrize("ticks", [0, 1])
+def test_the_periodic_orbit_loop_honours_the_same_rule(ticks: int) -> None:
+    """analysis.periodic_orbit's SampledLoop (the controller on the simulator, stepped tick by tick)."""
+    from furuta_rt.analysis.periodic_orbit import SampledLoop
+
+    rig = _with_delay_ticks(load_rig("thesis"), ticks)
+    coulomb = {"arm_coulomb": {"Fc": 0.02}}
+
+    def run(effects: dict) -> np.ndarray:
+        loop = SampledLoop(rig, None, Effects.model_validate(effects))
+        loop.set(np.r_[0.05, 0.0, 0.0, 0.0, loop.get()[4:]])
+        out = []
+        for _ in range(150):
+            loop.step()
+            out.append(loop.get()[:4])
+        return np.array(out)
+
+    stated = run(coulomb)
+    assert np.array_equal(stated, run({**coulomb, "command_latency": {"delay": ticks / rig.control.rate_hz}}))
+    assert not np.array_equal(stated, run({**coulomb, "command_latency": {"delay": (ticks + 1) / rig.control.rate_hz}}))
+
+
+def test_the_rule_and_its_inverse() -> None:
+    """effects.command_timing: (driver ticks, delay line) — command_delay_ticks and input_delay, or 0 and the whole
+    command_latency; total_latency its ticks·h + delay; latency_effect names the effect that carries a total."""
+    from furuta_rt.model.effects import command_timing, latency_effect, total_latency
+
+    rig = load_rig("thesis")  # 500 Hz, one tick
+    h = 1 / rig.control.rate_hz
+    assert command_timing(1, 0.003, None) == (1, 0.003) and command_timing(1, 0.003, 0.001) == (0, 0.001)
+    for eff, total in (({}, h), ({"input_delay": {"delay": 0.003}}, h + 0.003), ({"command_latency": {"delay": 0.001}}, 0.001)):
+        e = Effects.model_validate(eff)
+        assert total_latency(e, 1, rig.control.rate_hz) == pytest.approx(total)
+        ticks, delay = RigModel.from_config(rig, e).command_timing(1)
+        assert ticks * h + delay == pytest.approx(total)
+    assert latency_effect(h + 0.003, h) == ("input_delay", pytest.approx(0.003))
+    assert latency_effect(0.001, h) == ("command_latency", 0.001) and latency_effect(h, h) == ("command_latency", h)

@@ -95,6 +95,9 @@ class SampledLoop:
         self.dt = 1.0 / rig.control.rate_hz
         self._lugre = model.arm_friction.lugre is not None
         self.u = 0.0
+        # the latency rule: the command acts from its sample instant (a command_latency: the delay line carries it)
+        # or from the next sample (the driver's tick; more ticks are not followed here: the state would hold a queue)
+        self._at_sample = model.command_timing(rig.control.command_delay_ticks)[0] == 0
 
     def get(self) -> np.ndarray:
         s, c = self.sim, self.ctrl
@@ -123,8 +126,12 @@ class SampledLoop:
         s = self.sim
         y, yd = s.filtered_theta()
         out = self.ctrl.update(Measurement(s.t, y, yd, s.phi))
-        s.advance(1)
-        s.set_command(out.u)
+        if self._at_sample:
+            s.set_command(out.u)
+            s.advance(1)
+        else:
+            s.advance(1)
+            s.set_command(out.u)
         self.u = out.u
 
 

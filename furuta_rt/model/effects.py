@@ -389,12 +389,29 @@ class ArmAirDrag(JointTorque):
 # diagnose's residual, and its place in the class list is its place in diagnose's search.
 
 
+def command_timing(command_delay_ticks: int, input_delay: float, command_latency: float | None) -> tuple[int, float]:
+    """The latency rule (the module docstring), as (whole control periods the driver holds the command after its
+    sample, seconds of the actuator's delay line after that): command_delay_ticks and ``input_delay``, or 0 and the
+    whole ``command_latency`` when the rig has one. The total from the sample instant is ticks·h + delay. The
+    simulator's delay line, its command path, diagnose's window simulations and its nominal model all read it."""
+    if command_latency is not None:
+        return 0, command_latency
+    return command_delay_ticks, input_delay
+
+
 def total_latency(effects: Effects, command_delay_ticks: int, rate_hz: float) -> float:
-    """The latency rule: seconds from the sample instant to the torque acting — ``command_latency`` when the rig has
-    it, else command_delay_ticks·h + ``input_delay`` (the module docstring)."""
-    if effects.command_latency is not None:
-        return effects.command_latency.delay
-    return command_delay_ticks / rate_hz + (effects.input_delay.delay if effects.input_delay else 0.0)
+    """Seconds from the sample instant to the torque acting for a rig with ``effects`` (command_timing's total)."""
+    ticks, delay = command_timing(command_delay_ticks, effects.input_delay.delay if effects.input_delay else 0.0,
+                                  effects.command_latency.delay if effects.command_latency else None)
+    return ticks / rate_hz + delay
+
+
+def latency_effect(total: float, command_lag: float) -> tuple[str, float]:
+    """The rule inverted: the effect that carries a total latency ``total`` (s) on a rig whose driver holds the
+    command ``command_lag`` = command_delay_ticks·h, and its delay: an ``input_delay`` of total − command_lag when
+    longer, else a ``command_latency`` of the total."""
+    on_top = total - command_lag
+    return ("input_delay", on_top) if on_top > 0 else ("command_latency", total)
 
 
 class _EffectSet(Effect):

@@ -13,7 +13,7 @@ from typing import Protocol
 
 from furuta_rt.model.actuator import Actuator, DCMotor
 from furuta_rt.model.coupling import Coupling
-from furuta_rt.model.effects import PEND, PENDULUM_COULOMB_EPSILON, Effects, JointTorque
+from furuta_rt.model.effects import PEND, PENDULUM_COULOMB_EPSILON, Effects, JointTorque, command_timing
 from furuta_rt.model.friction import Coulomb, CoulombStiction, JointFriction, LuGre, Viscous
 from furuta_rt.model.parameters import LumpedParameters
 from furuta_rt.model.plant import FurutaPlant
@@ -80,6 +80,11 @@ class RigModel:
             else:
                 tau_a += e.torque(theta, theta_dot, phi, phi_dot)
         return tau_p, tau_a
+
+    def command_timing(self, command_delay_ticks: int) -> tuple[int, float]:
+        """(ticks the driver holds a command after its sample, s of the actuator's delay line): effects.command_timing
+        for this rig's input_delay and command_latency."""
+        return command_timing(command_delay_ticks, self.actuator.delay, self.command_latency)
 
     @classmethod
     def from_config(cls, rig: RigSpec, effects: Effects | None = None) -> RigModel:

@@ -20,9 +20,10 @@ class CommandPath:
         if command_delay_ticks < 0:
             raise ValueError(f"command_delay_ticks must be >= 0, got {command_delay_ticks}")
         self.sim = sim
-        self._at_sample = sim.commands_at_sample or command_delay_ticks == 0
+        ticks, _ = sim.model.command_timing(command_delay_ticks)  # the delay line carries the rest
+        self._at_sample = ticks == 0
         # commands still on their way to the driver when they act more than one tick after their sample
-        self._queue: deque[float] = deque([0.0] * max(command_delay_ticks - 1, 0))
+        self._queue: deque[float] = deque([0.0] * max(ticks - 1, 0))
 
     def send_and_advance(self, command: float) -> None:
         """``command`` answers the sample just taken; the plant is integrated to the next sample."""

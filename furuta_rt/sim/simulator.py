@@ -71,9 +71,9 @@ class Simulator:
         self.stuck = False
         self.arm_friction_torque = 0.0
         self.command = 0.0
-        # command_latency (total, from the sample instant) replaces the driver's one-tick lag + the actuator delay:
-        # the driver then calls set_command at the sample instant (commands_at_sample), the line carries it all.
-        lag = model.command_latency if model.command_latency is not None else model.actuator.delay
+        # the delay line's part of the latency rule (the driver's whole ticks are CommandPath's): the actuator's delay,
+        # or a command_latency whole, the driver then setting the command at the sample instant (commands_at_sample)
+        _, lag = model.command_timing(0)
         n_delay = round(lag / self.h)
         self._bias = model.arm_bias
         self._delay_line: deque[float] = deque([0.0] * n_delay)
@@ -119,7 +119,7 @@ class Simulator:
         """True when the rig has a ``command_latency``: the driver sets the command answering a sample at that
         sample's instant (before ``advance``) and the delay line makes it act ``command_latency`` s later. False:
         the driver sets it one tick later (the protocol's lag), the line adding the actuator's ``input_delay``."""
-        return self.model.command_latency is not None
+        return self.model.command_timing(1)[0] == 0
 
     def set_command(self, command: float) -> None:
         """The actuator command (N m or V) from now on (the actuator's own delay still applies)."""

@@ -61,7 +61,7 @@ def start_simulator(model: RigModel, prep: Prepared, fine: States, k: int, rate:
         sim.y_dot = float(fine.smooth(prep.theta_dot_f)[k]) if prep.theta_dot_f is not None else float(fine.theta_dot[k])
     n = len(sim.commands_in_flight)  # the actuator's transport delay: fill with the commands already in flight
     if n:
-        D = 0 if sim.commands_at_sample else round(prep.command_lag / prep.dt)
+        D, _ = model.command_timing(round(prep.command_lag / prep.dt))  # the driver's ticks of the rule
         queued = []
         for i in range(n):
             t_sub = -(n - i) * sim.h  # time before t_k of this queued substep command
@@ -126,7 +126,7 @@ def _track(model: RigModel, prep: Prepared, fine: States, k: int, horizon: int, 
     ph = np.full(horizon, np.nan)
     try:
         sim = start_simulator(model, prep, fine, k, 1.0 / prep.dt, substep_hz)
-        D = 0 if sim.commands_at_sample else round(prep.command_lag / prep.dt)  # command_latency: the line lags
+        D, _ = model.command_timing(round(prep.command_lag / prep.dt))  # the driver's ticks; the line the rest
         for j in range(horizon):
             sim.set_command(float(prep.u[max(k + j - D, 0)]))
             sim.advance(1)

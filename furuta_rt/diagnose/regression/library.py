@@ -108,9 +108,8 @@ class Context:
     def base_delay(self) -> float:
         """The nominal model's delay on top of command_delay_ticks·h: the rig's own input_delay, or its own
         command_latency (a total) less command_delay_ticks·h (negative when the command acts sooner)."""
-        if self.model.command_latency is not None:
-            return self.model.command_latency - self.prep.command_lag
-        return self.model.actuator.delay
+        ticks, delay = self.model.command_timing(round(self.prep.command_lag / self.prep.dt))
+        return delay - (self.prep.command_lag - ticks * self.prep.dt)
 
     @cached_property
     def base_inertia(self) -> float:

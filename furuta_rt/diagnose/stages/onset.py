@@ -34,9 +34,9 @@ from furuta_rt.config import RigConfig
 from furuta_rt.diagnose.judgement.verify import quiet
 from furuta_rt.diagnose.regression.fitting import vertex
 from furuta_rt.diagnose.regression.states import Prepared, States
-from furuta_rt.diagnose.stages.latency import LATENCY_EFFECTS, effect_for
+from furuta_rt.diagnose.stages.latency import LATENCY_EFFECTS
 from furuta_rt.diagnose.stages.stickslip import Window, simulate_arm
-from furuta_rt.model.effects import Effects
+from furuta_rt.model.effects import Effects, command_timing, latency_effect
 from furuta_rt.model.rig import RigModel
 
 STEP_SHARE = 0.2  # a command step of at least this share of the largest |command|
@@ -109,10 +109,10 @@ def starts(prep: Prepared) -> list[Start]:
 
 def _with_total(found: dict[str, dict[str, float]], total: float, lag: float) -> dict[str, dict[str, float]]:
     """``found`` with the total latency ``total`` (s): an input_delay on top of the config's lag, or a
-    command_latency (the total) when shorter (latency.effect_for)."""
+    command_latency (the total) when shorter (effects.latency_effect)."""
     eff = {k: v for k, v in found.items() if k not in LATENCY_EFFECTS}
-    name = effect_for(total - lag)
-    eff[name] = {"delay": total - lag if name == "input_delay" else total}
+    name, delay = latency_effect(total, lag)
+    eff[name] = {"delay": delay}
     return eff
 
 
@@ -133,8 +133,9 @@ def assess(rig: RigConfig, found: dict[str, dict[str, float]], prep: Prepared, f
     if not ss or not prep.commanded:
         return None
     h, lag = prep.dt, prep.command_lag
-    config_total = float(found["command_latency"]["delay"]) if "command_latency" in found else (
-        lag + float(found.get("input_delay", {}).get("delay", 0.0)))
+    ticks, delay = command_timing(round(lag / h), float(found.get("input_delay", {}).get("delay", 0.0)),
+                                  float(found["command_latency"]["delay"]) if "command_latency" in found else None)
+    config_total = ticks * h + delay
     grid = np.arange(0.0, MAX_TICKS + 1e-9, GRID_STEP_TICKS) * h
     config_model = _model(rig, found)
     at_config = [stray(config_model, prep, fine, s) for s in ss]

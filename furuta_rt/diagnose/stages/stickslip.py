@@ -96,7 +96,7 @@ def simulate_arm(model: RigModel, prep: Prepared, fine: States, w: Window, subst
     """φ over ticks w.start+1 … w.start+w.horizon: the arm simulated from ``w.phi_dot``, the pendulum teacher-forced."""
     k = w.start
     sim = start_simulator(model, prep, fine, k, 1.0 / prep.dt, substep_hz, phi_dot=w.phi_dot)
-    D = 0 if sim.commands_at_sample else round(prep.command_lag / prep.dt)  # a command_latency replaces the lag
+    D, _ = model.command_timing(round(prep.command_lag / prep.dt))  # the driver's ticks; the line the rest
     out = np.empty(w.horizon)
     for j in range(w.horizon):
         sim.set_command(float(prep.u[max(k + j - D, 0)]))
