@@ -55,7 +55,9 @@ Stage = Callable[[State], State]
 
 PIPELINE: tuple[Stage, ...] = (
     equations.stage,  # each equation of eq. 4 regressed on the library's effects
-    stick_windows.stage,  # the arm's sticks and breakaways: breakaway torque, actuator timing
+    stick_windows.first_reading,  # the arm's sticks and breakaways: breakaway torque, actuator timing
+    stick_windows.reselect,  # after a breakaway: the arm regression again without its short stays at one count
+    stick_windows.second_reading,  # ... and the windows read again on top of that sliding level
     arm_starts.stage,  # the arm's starts from rest time the actuator, where no latency was found
     peak_windows.stage,  # the largest commands: an actuator torque limit
     lookalikes.stage,  # each effect against its look-alikes; the favoured one becomes the model

@@ -19,7 +19,7 @@ def stage(s: State) -> State:
     value = timing.total - s.ctx.prep.command_lag  # path.delay: on top of the config's lag
     name = latency.effect_for(value)
     r = s.res[ARM]
-    ev = latency._refit_at(s.ems[ARM], r.selected.spec.with_effect(name), value, r.selected)
+    ev = latency.refit_at(s.ems[ARM], r.selected.spec.with_effect(name), value, r.selected)
     ev.t_stat[name] = abs(value) / timing.se
     ev.se[name] = {"delay": timing.se}
     trace = [*r.trace, {"step": len(ev.spec.effects), "candidate": "latency (arm starts)", "accepted": True, "ok": True,

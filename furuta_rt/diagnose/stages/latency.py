@@ -116,7 +116,7 @@ def settle(em: EquationModel, selected: Evaluation, trace: list[dict] | None = N
     if not ok:
         if not any(n in selected.spec.effects for n in LATENCY_EFFECTS):
             return selected  # the config's latency stands, and so does the selected model
-        return _refit_at(em, spec, null_delay, selected)
+        return refit_at(em, spec, null_delay, selected)
     spec = spec.with_effect(name).with_value("delay", value)
     if joint_j:  # ΔJ in the selection's units (acceleration-weighted profile) at the lag found
         spec = em.evaluate_with(spec.without("arm_inertia"), "arm_inertia").spec
@@ -130,7 +130,7 @@ def settle(em: EquationModel, selected: Evaluation, trace: list[dict] | None = N
     return out
 
 
-def _refit_at(em: EquationModel, spec: Spec, value: float, selected: Evaluation) -> Evaluation:
+def refit_at(em: EquationModel, spec: Spec, value: float, selected: Evaluation) -> Evaluation:
     """``spec`` with the command path's delay at ``value`` (on top of the config's lag), its linear parameters refitted
     and ΔJ re-profiled there (lag and inertia trade phase); the nonlinear parameters keep ``selected``'s t and se (from
     their profiles)."""
@@ -150,4 +150,4 @@ def retimed(em: EquationModel, selected: Evaluation, delay: float) -> Evaluation
     ±Fc): the gain, damping and inertia reported beside that delay are fitted at it, not at the rows' own value."""
     if "input_delay" not in selected.spec.effects:
         return selected
-    return _refit_at(em, selected.spec, delay, selected)
+    return refit_at(em, selected.spec, delay, selected)

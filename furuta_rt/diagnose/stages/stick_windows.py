@@ -1,10 +1,11 @@
-"""Stage: the arm's sticks and breakaways (furuta_rt.diagnose.stages.stickslip) decide on a breakaway torque above the
-sliding level and time the actuator; without Coulomb friction found, on the sliding level too (from the arm
-regression's provisional fit of it).
+"""Stages: the arm's sticks and breakaways (furuta_rt.diagnose.stages.stickslip) decide on a breakaway torque above
+the sliding level and time the actuator; without Coulomb friction found, on the sliding level too (from the arm
+regression's provisional fit of it) — ``first_reading``.
 
 With a breakaway above the sliding level the arm may also stick briefly at reversals, where its friction is the held
-torque, not ±Fc: the arm regression is then redone without any short stay at one count, and the windows are read a
-second time on top of the sliding level found there (what the first reading compared stays on record)."""
+torque, not ±Fc: the arm regression is then redone without any short stay at one count (``reselect``), and the windows
+are read a second time on top of the sliding level found there (``second_reading``; what the first reading compared
+stays on record)."""
 
 from __future__ import annotations
 
@@ -20,12 +21,19 @@ from furuta_rt.diagnose.stages.state import State
 RESELECT_MIN_ROWS, RESELECT_MIN_SHARE = 1000, 0.25  # the arm regression without short stays, if this much is left
 
 
-def stage(s: State) -> State:
-    if not s.opts.stick_windows:
-        return s
-    s = read(s, lugre=False)
-    first = s.stick
-    if first is None or not {"arm_stiction", "arm_lugre"} & set(first.added):
+def first_reading(s: State) -> State:
+    """The stick windows read on the regression's arm model (LuGre is tried in the second reading only)."""
+    return read(s, lugre=False) if s.opts.stick_windows else s
+
+
+def _breakaway(first: stickslip.WindowStage | None) -> bool:
+    """The first reading found a breakaway above the sliding level (stiction, or LuGre's Stribeck peak)."""
+    return first is not None and bool({"arm_stiction", "arm_lugre"} & set(first.added))
+
+
+def reselect(s: State) -> State:
+    """After a breakaway: the arm regression without the short stays, when enough rows are left."""
+    if not _breakaway(s.stick):
         return s
     ctx, opts = s.ctx, s.opts
     em, r = select_equation(ctx, ARM, opts, ctx.clear_of(ctx.stays(STICTION_STILL_TICKS)))
@@ -34,7 +42,14 @@ def stage(s: State) -> State:
             f"arm equation: with a breakaway above the sliding level, stays of ≥ {STICTION_STILL_TICKS} ticks at "
             f"one encoder count are left out too (they may be short sticks); {em.n_rows} rows")
     # the regression's effects as they are now (a delay the windows re-timed among them)
-    s = s.replace_found(f for eq in s.res for f in found_in(s.ems[eq], s.res[eq], []))
+    return s.replace_found(f for eq in s.res for f in found_in(s.ems[eq], s.res[eq], []))
+
+
+def second_reading(s: State) -> State:
+    """After a breakaway: the windows read again on the reselected arm model, both readings' comparisons on record."""
+    first = s.stick
+    if not _breakaway(first):
+        return s
     s = read(s, only=set(first.added))
     if s.stick is None:
         return s
