@@ -139,7 +139,7 @@ def test_joint_fit_takes_recordings_with_gaps_as_their_stretches(gap_free) -> No
     """Two recordings of one rig with gaps fitted jointly (a designed experiment's log on a busy machine has them):
     each takes part as its stretches; the arm friction is found, its level within 3 se of the gap-free recording's
     alone; the rows are reported per recording (its stretches added), each recording's gaps among the notes."""
-    from furuta_rt.diagnose.joint import diagnose_joint
+    from furuta_rt.diagnose.jointly import diagnose_joint
 
     case = next(c for c in suite.quick_cases() if c.name == "arm_coulomb")
     again = suite.generate(dataclasses.replace(case, duration=SECONDS, seed=case.seed + 1), load_rig("thesis"))

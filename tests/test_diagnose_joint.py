@@ -18,7 +18,8 @@ import pytest
 from furuta_rt.cli import main
 from furuta_rt.config import load_rig
 from furuta_rt.diagnose import Options, diagnose
-from furuta_rt.diagnose.joint import JointDiagnosis, diagnose_joint
+from furuta_rt.diagnose.joint import JointDiagnosis
+from furuta_rt.diagnose.jointly import diagnose_joint
 from furuta_rt.diagnose.stages.lookalikes import SEPARATION_Z
 from furuta_rt.experiment.plan import Excitation, Plan, Segment
 from furuta_rt.io.csv import write_csv

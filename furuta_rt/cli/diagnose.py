@@ -194,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
 
 def run_joint(args: argparse.Namespace) -> int:
     """Several recordings of one rig fitted jointly (furuta_rt.diagnose.joint)."""
-    from furuta_rt.diagnose.joint import diagnose_joint, text
+    from furuta_rt.diagnose.jointly import diagnose_joint, text
 
     if args.report:
         raise UserError("--report writes the page of one recording; with several, use --json (or diagnose each alone)")
