@@ -125,6 +125,9 @@ def test_the_regression_reads_every_effect_from_its_class_alone() -> None:
     assert not {c.value for c in ast.walk(cand) if isinstance(c, ast.Constant)} & set(EFFECT_TYPES)
     assert list(CANDIDATES) == [n for n, c in EFFECT_TYPES.items() if c.regressed]  # the registry's order is the search's
     assert "arm_stiction" not in CANDIDATES  # measured on the stick windows, not by the regression
+    # the command path's effects are tried only on a recording with a command (on_command), nothing else is held back
+    assert {n for n, c in EFFECT_TYPES.items() if c.on_command} == {
+        "input_gain", "input_delay", "input_deadzone", "input_saturation"}
     for name, cand in CANDIDATES.items():
         cls = EFFECT_TYPES[name]
         assert (cand.nonlinear, cand.requires, cand.excludes) == (cls.nonlinear, cls.requires, cls.excludes)

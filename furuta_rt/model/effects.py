@@ -50,6 +50,8 @@ class Effect(BaseModel):
     requires: ClassVar[str | None] = None  # an effect that must be in the model first
     excludes: ClassVar[tuple[str, ...]] = ()  # effects it cannot join (the same parameter, or the same column)
     varying: ClassVar[bool] = False  # its columns change with the command path or the Stribeck speed (not cached)
+    on_command: ClassVar[bool] = False  # it acts on the command (gain, delay, dead band, limit): tried only where there
+    # is one (a recording without a command cannot show it)
 
     @classmethod
     def __pydantic_init_subclass__(cls, **kwargs: Any) -> None:
@@ -204,6 +206,7 @@ class ArmInertia(Effect):
 
 class InputGain(Effect):
     name = "input_gain"
+    on_command = True
     lookalikes = ("arm_inertia", "arm_bias")
     varying = True
     experiments = {
@@ -236,6 +239,7 @@ class InputGain(Effect):
 
 class InputDelay(Effect):
     name = "input_delay"
+    on_command = True
     nonlinear = "delay"
     excludes = ("command_latency",)
     delay: float = Field(ge=0, le=0.5, description="transport delay of the actuator command, s")
@@ -266,6 +270,7 @@ class CommandLatency(Effect):
 
 class InputDeadzone(Effect):
     name = "input_deadzone"
+    on_command = True
     lookalikes = ("arm_coulomb",)
     nonlinear = "deadzone"
     width: float = Field(ge=0, description="half-width of the dead band, N m")
@@ -281,6 +286,7 @@ class InputDeadzone(Effect):
 
 class InputSaturation(Effect):
     name = "input_saturation"
+    on_command = True
     nonlinear = "limit"
     limit: float = Field(gt=0, description="largest torque the actuator delivers, N m")
 

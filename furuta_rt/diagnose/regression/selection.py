@@ -115,7 +115,7 @@ class EquationModel:
         commanded = self.ctx.prep.commanded
         return [
             c for c in CANDIDATES.values()
-            if c.equation == self.equation and (commanded or not c.name.startswith("input_"))
+            if c.equation == self.equation and (commanded or not c.effect.on_command)
             and (c.searched or c.name in self.ctx.also_search)
         ]
 
