@@ -302,6 +302,18 @@ def _logger_pid(daemon: DaemonProcess, *, starting: bool) -> int | None:
     return spawned[-1] if len(spawned) >= (2 if starting else 1) else None
 
 
+def _refused_in_start_up(daemon: DaemonProcess, rc: int | None, cause: str) -> str:
+    """A start-up that lost one of its processes: exit 2, no traceback, one error line naming ``cause``, never
+    balanced. Returns the daemon's output."""
+    out = daemon.stderr + daemon.stdout
+    assert traceback_free(out), out
+    assert rc == 2, out
+    errors = [line for line in daemon.stderr.splitlines() if "error" in line]
+    assert len(errors) == 1 and cause in errors[0], out
+    assert "balancing" not in out
+    return out
+
+
 def _starting_logger(daemon: DaemonProcess) -> int | None:
     """Wait (up to TIMEOUT_S, while the daemon lives) until its logger starts beside the design helper: its pid."""
     end = time.monotonic() + TIMEOUT_S
@@ -387,12 +399,8 @@ def test_a_logger_killed_during_start_up_is_one_line_at_once(tmp_path: Path) -> 
         took = time.monotonic() - t_kill
     finally:
         daemon.kill_group(signal.SIGKILL)
-    out = daemon.stderr + daemon.stdout
-    assert traceback_free(out), out
-    assert rc == 2, out
-    errors = [line for line in daemon.stderr.splitlines() if "error" in line]
-    assert len(errors) == 1 and "logger process died during start-up" in errors[0], out
-    assert "balancing" not in out and took < 30, (took, out)
+    out = _refused_in_start_up(daemon, rc, "logger process died during start-up")
+    assert took < 30, (took, out)
 
 
 def test_the_controller_design_helper_killed_during_start_up_is_one_line(tmp_path: Path) -> None:
@@ -405,9 +413,4 @@ def test_the_controller_design_helper_killed_during_start_up_is_one_line(tmp_pat
         rc = daemon.wait(timeout=TIMEOUT_S)
     finally:
         daemon.kill_group(signal.SIGKILL)
-    out = daemon.stderr + daemon.stdout
-    assert traceback_free(out), out
-    assert rc == 2, out
-    errors = [line for line in daemon.stderr.splitlines() if "error" in line]
-    assert len(errors) == 1 and "controller design process died" in errors[0], out
-    assert "balancing" not in out
+    _refused_in_start_up(daemon, rc, "controller design process died")

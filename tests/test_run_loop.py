@@ -24,7 +24,7 @@ from furuta_rt.config import RigConfig, load_rig
 from furuta_rt.controller.controller import Controller, Measurement
 from furuta_rt.errors import UserError
 from furuta_rt.model.rig import RigModel
-from furuta_rt.runtime.hardware import HardwareInterface, SerialHardware, check_usb_latency
+from furuta_rt.runtime.hardware import DeviceInfo, HardwareInterface, SerialHardware, check_usb_latency
 from furuta_rt.runtime.loop import TICK_RECORD, ControlLoop, LoopResult, LoopSettings
 from furuta_rt.runtime.supervisor import STATE_NAMES, Supervisor, SupervisorLimits
 from furuta_rt.runtime.timing import DeviceClock, Histogram, RunningStats
@@ -573,6 +573,16 @@ def test_handshake_refuses_a_mismatched_device(ack: dict[str, Any], status_flags
         daq.close()
 
 
+def _handshake_with(daq: ScriptedDaq, rate_hz: int, watchdog_ms: int) -> DeviceInfo:
+    """The host's handshake with a scripted device, both ends closed after it: the DeviceInfo it returned."""
+    hw = SerialHardware(daq.port)
+    try:
+        return hw.handshake(rate_hz, watchdog_ms)
+    finally:
+        hw.close()
+        daq.close()
+
+
 @pytest.mark.parametrize(("cause", "words", "warned"), [
     (fp.ResetCause.POWER_ON, "power-on", None),
     (fp.ResetCause.WATCHDOG, "watchdog reset", "reset by its watchdog"),
@@ -584,13 +594,7 @@ def test_the_reset_cause_is_said_on_connect(cause: fp.ResetCause, words: str, wa
     from furuta_rt.config import load_rig
     from furuta_rt.runtime.daemon import _check_device
 
-    daq = ScriptedDaq({"reset_cause": int(cause), "actuator_full_scale": 2.0})
-    hw = SerialHardware(daq.port)
-    try:
-        info = hw.handshake(500, 20)
-    finally:
-        hw.close()
-        daq.close()
+    info = _handshake_with(ScriptedDaq({"reset_cause": int(cause), "actuator_full_scale": 2.0}), 500, 20)
     assert info.reset_cause == words and info.metadata()["reset_cause"] == words
     warnings: list[str] = []
     _check_device(info, load_rig("thesis"), warnings)
@@ -602,12 +606,7 @@ def test_the_reset_cause_is_said_on_connect(cause: fp.ResetCause, words: str, wa
 
 def test_handshake_configures_rate_and_watchdog_and_reads_the_calibration() -> None:
     daq = ScriptedDaq({"sample_rate_hz": 1000, "theta_offset_counts": -12, "theta_dot_offset_counts": 5})
-    hw = SerialHardware(daq.port)
-    try:
-        info = hw.handshake(500, 40)
-    finally:
-        hw.close()
-        daq.close()
+    info = _handshake_with(daq, 500, 40)
     configs = [m for m in daq.received if isinstance(m, fp.Config)]
     assert configs == [fp.Config(rate_hz=500, watchdog_ms=40)], "HELLO_ACK said 1000 Hz: CONFIG asks for 500"
     assert (info.rate_hz, info.watchdog_ms, info.firmware, info.actuator_kind) == (500, 40, "1.2.3", "torque")
