@@ -213,12 +213,7 @@ class Controller:
         saturated = lim is not None and (u > lim or u < -lim)
         if saturated:
             u = lim if u > 0 else -lim  # type: ignore[operator]
-        if self._delay:
-            self._pending.append(u)
-            applied = self._pending.popleft()
-        else:
-            applied = u
-        self.observer.predict(math.sin(m.theta) * math.cos(m.theta), applied)
+        self.observer.predict(math.sin(m.theta) * math.cos(m.theta), self._acting(u))
         return _new_output(ControlOutput, (u, u, 0.0, phi_dot, saturated, False))
 
     def update(self, m: Measurement) -> ControlOutput:
@@ -274,14 +269,7 @@ class Controller:
         if lim is not None and (u > lim or u < -lim):
             u = lim if u > 0 else -lim
             saturated = True
-        # The torque acting over the next period is the command issued `delay` ticks ago.
-        if self._delay:
-            pending = self._pending
-            pending.append(u - u_comp)
-            applied = pending.popleft()
-        else:
-            applied = u - u_comp
-        obs.predict(theta if su is None else self._observer_theta(theta), applied)
+        obs.predict(theta if su is None else self._observer_theta(theta), self._acting(u - u_comp))
         return _new_output(ControlOutput, (u, u_lin, u_comp, phi_dot, saturated, self.swinging))
 
     def hold(self, m: Measurement) -> float:
@@ -290,10 +278,14 @@ class Controller:
         if not self._started:
             self.reset(m.phi)
         phi_dot = self.observer.correct(m.phi)
-        if self._delay:
-            self._pending.append(0.0)
-            applied = self._pending.popleft()
-        else:
-            applied = 0.0
-        self.observer.predict(self._observer_theta(m.theta), applied)
+        self.observer.predict(self._observer_theta(m.theta), self._acting(0.0))
         return phi_dot
+
+    def _acting(self, issued: float) -> float:
+        """The torque acting over the next period: the command issued ``delay`` ticks ago (``issued`` joins the
+        delay line), what the observer's prediction must use."""
+        if not self._delay:
+            return issued
+        pending = self._pending
+        pending.append(issued)
+        return pending.popleft()
