@@ -66,19 +66,19 @@ def _key(cc: str, files: tuple[Path, ...], flags: tuple[str, ...]) -> str:
 
 
 def host_library(sources: tuple[Path, ...] = SOURCES, headers: tuple[Path, ...] = HEADERS,
-                 name: str = LIBRARY_NAME, libs: tuple[str, ...] = ()) -> Path:
+                 name: str = LIBRARY_NAME, libs: tuple[str, ...] = (), include_dirs: tuple[Path, ...] = ()) -> Path:
     """A shared library built with the host's compiler and the firmware's flags, cached by source and compiler;
-    by default the firmware core with the host HAL (hil_mock's compiled plant passes its own sources)."""
+    by default the firmware core with the host HAL (the compiled plant and hil_mock's device pass their own)."""
     cc = _compiler()
-    flags = (*HOST_FLAGS, *libs)
-    out = build_dir() / f"{name}-{_key(cc, (*sources, *headers), flags)}.so"
+    compile_flags = (*HOST_FLAGS, *(f"-I{d}" for d in include_dirs))
+    out = build_dir() / f"{name}-{_key(cc, (*sources, *headers), (*compile_flags, *libs))}.so"
     if out.exists():
         return out
     out.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{name}-", suffix=".so", dir=out.parent)
     os.close(fd)
     try:
-        res = subprocess.run([cc, *HOST_FLAGS, *map(str, sources), "-o", tmp, *libs], capture_output=True, text=True,
+        res = subprocess.run([cc, *compile_flags, *map(str, sources), "-o", tmp, *libs], capture_output=True, text=True,
                              timeout=120, check=False)
         if res.returncode != 0:
             first = (res.stderr.strip().splitlines() or ["(no output)"])[0]

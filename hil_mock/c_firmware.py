@@ -4,25 +4,43 @@
 the simulator, its initial state, the rig put back at a new session, the plant advanced in device time), with the
 protocol decisions — handshake, CONFIG, command acceptance, watchdog, faults, every byte sent — made by the C
 code that runs on the microcontroller, built for the host (firmware_protocol.hostbuild) and called through
-ctypes. The host HAL (firmware/host/host_hal.c) is fed the plant's ADC and encoder readings before each tick, and
-its actuator counts drive the plant after it: the C never calls back into Python.
+ctypes. With the compiled plant (furuta_rt.sim.compiled) the whole tick is C (hil_mock/csrc/device.c): the DAQ's
+sensor path, the core's tick, the frames out and the plant's substeps, one call; Python hands it the bytes the
+host sent, the simulator's noise draws in blocks and the actuator's shaping as a table of every COMMAND count
+(Actuator.torque_terms, the one definition), and writes the frames out. With a plant plant.c does not cover, the
+Python simulator is sampled and advanced around the same calls. The C never calls back into Python.
 """
 
 from __future__ import annotations
 
 import ctypes
 import functools
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 from firmware_protocol import HelloAck, ResetCause, Status, counts_to_actuator
-from firmware_protocol.hostbuild import host_library
+from firmware_protocol.hostbuild import HEADERS, SOURCES, host_library
 from furuta_rt.config import RigConfig
+from furuta_rt.model.actuator import Actuator
 from furuta_rt.model.rig import RigModel
+from furuta_rt.model.sensors import Calibration
+from furuta_rt.sim.compiled import HEADER as PLANT_HEADER
+from furuta_rt.sim.compiled import SOURCE as PLANT_SOURCE
+from furuta_rt.sim.compiled import CompiledSimulator
 from hil_mock.config import MAX_RATE_HZ, DeviceSettings
 from hil_mock.firmware import Firmware
 
+DEVICE_SOURCE = Path(__file__).parent / "csrc" / "device.c"
 WRAPPING_RAIL = 1 << 20  # beyond every int16 reading
-TX_BYTES = 2048  # host_hal.c HOST_TX_BYTES
-TX_FRAMES = 64  # host_hal.c HOST_TX_FRAMES
+OUT_BYTES = 4096  # device.c HIL_OUT_BYTES
+OUT_FRAMES = 128  # device.c HIL_OUT_FRAMES
+NOISE_BLOCK = 4096  # noise draws handed to device.c at a time
+_STREAMING, _ANSWERED, _NEW_SESSION, _NOISE_LOW, _FRAMES, _NO_NOISE = 1, 2, 4, 8, 16, 32  # device.c's status bits
+_SLOW = _NEW_SESSION | _NOISE_LOW | _FRAMES | _NO_NOISE
+_DP = ctypes.POINTER(ctypes.c_double)
 STATE_FIELDS = (
     "clock_ns", "period_ns", "rate_hz", "watchdog_ms", "streaming", "enabled", "answered", "any_applied",
     "output_counts", "faults", "status_flags", "new_sessions", "tx_frames", "commands_rx", "commands_applied",
@@ -31,12 +49,9 @@ STATE_FIELDS = (
 )  # host_hal.c host_state()
 _COUNTERS = ("commands_rx", "commands_applied", "commands_discarded", "watchdog_trips", "handshakes",
              "handshakes_refused", "samples_sent", "status_sent", "hangups", "reboots", "rate_hz", "watchdog_ms",
-             "period_ns", "clock_ns", "faults", "seq", "last_cmd_seq", "commands_other_session")
-_COUNTER_INDEX = tuple((name, STATE_FIELDS.index(name)) for name in _COUNTERS)
-(_TX_FRAMES, _STREAMING, _ENABLED, _ANSWERED, _ANY_APPLIED, _STATUS_FLAGS, _CRC_ERRORS, _ERRORS, _FRAMES_OK,
- _NEW_SESSIONS, _OUTPUT_COUNTS) = (STATE_FIELDS.index(name) for name in (
-    "tx_frames", "streaming", "enabled", "answered", "any_applied", "status_flags", "crc_errors", "errors",
-    "frames_ok", "new_sessions", "output_counts"))
+             "faults", "seq", "last_cmd_seq", "commands_other_session")
+_STATUS_FLAGS, _CRC_ERRORS, _ERRORS, _FRAMES_OK = (
+    STATE_FIELDS.index(name) for name in ("status_flags", "crc_errors", "errors", "frames_ok"))
 
 
 class Board(ctypes.Structure):
@@ -66,7 +81,11 @@ class Board(ctypes.Structure):
 @functools.cache
 def load_library() -> ctypes.CDLL:
     """The host build of the firmware (built and cached on first use) with its signatures declared."""
-    lib = ctypes.CDLL(str(host_library()))
+    return _declare_core(ctypes.CDLL(str(host_library())))
+
+
+def _declare_core(lib: ctypes.CDLL) -> ctypes.CDLL:
+    """The host HAL's functions (firmware/host/host_hal.c) declared on ``lib``."""
     dev = ctypes.c_void_p
     u8, u16, u32, i16, i32 = ctypes.c_uint8, ctypes.c_uint16, ctypes.c_uint32, ctypes.c_int16, ctypes.c_int32
     for name, args, res in (
@@ -92,21 +111,124 @@ def load_library() -> ctypes.CDLL:
     return lib
 
 
+class HilDevice(ctypes.Structure):
+    """hil_mock/csrc/device.c ``hil_device_t``."""
+
+    _fields_ = (
+        ("fw", ctypes.c_void_p),
+        ("params", ctypes.c_void_p),
+        ("state", _DP), ("ring", _DP),
+        ("head", ctypes.POINTER(ctypes.c_int32)),
+        ("n_delay", ctypes.c_int32),
+        ("state0", _DP), ("ring0", _DP), ("actuation", _DP), ("noise", _DP), ("noise0", _DP),
+        ("noise_len", ctypes.c_uint32), ("noise_pos", ctypes.c_uint32), ("noise0_len", ctypes.c_uint32),
+        *((name, ctypes.c_double) for name in (
+            "theta_noise", "theta_dot_noise", "theta_offset", "theta_rad_per_count", "theta_dot_rad_s_per_count",
+            "phi_rad_per_count")),
+        *((name, ctypes.c_int32) for name in (
+            "adc_min", "adc_max", "theta_offset_counts", "theta_wraps", "adc_bits", "bessel")),
+        ("substep_hz", ctypes.c_double),
+        ("plant_start_ns", ctypes.c_int64), ("substeps_done", ctypes.c_int64), ("pending", ctypes.c_int64),
+        ("sessions_seen", ctypes.c_uint32), ("replacements", ctypes.c_uint32),
+        ("clock_ns", ctypes.c_uint64), ("period_ns", ctypes.c_uint32), ("output", ctypes.c_int32),
+        ("theta_adc", ctypes.c_int32), ("theta_dot_adc", ctypes.c_int32), ("phi_count", ctypes.c_int32),
+        ("out_len", ctypes.c_uint32), ("out_frames", ctypes.c_uint32),
+        ("out_frame_len", ctypes.c_uint16 * OUT_FRAMES),
+        ("out", ctypes.c_uint8 * OUT_BYTES),
+    )
+
+
+@functools.cache
+def load_device_library() -> ctypes.CDLL:
+    """hil_mock's device in C: the firmware core, its host HAL, plant.c and device.c, one library."""
+    lib = ctypes.CDLL(str(host_library(
+        sources=(*SOURCES, PLANT_SOURCE, DEVICE_SOURCE), headers=(*HEADERS, PLANT_HEADER), name="libhil_device",
+        libs=("-lm",), include_dirs=(PLANT_SOURCE.parent,))))
+    dev = ctypes.POINTER(HilDevice)
+    u32 = ctypes.c_uint32
+    for name, args in (("hil_rx", (dev, ctypes.c_char_p, ctypes.c_size_t)), ("hil_tick", (dev, ctypes.c_int)),
+                       ("hil_advance", (dev,)), ("hil_skip", (dev, u32)), ("hil_poll", (dev,))):
+        fn = getattr(lib, name)
+        fn.argtypes = args
+        fn.restype = u32
+    lib.hil_device_size.restype = ctypes.c_size_t
+    if lib.hil_device_size() != ctypes.sizeof(HilDevice):
+        raise RuntimeError("hil_mock/csrc/device.c: hil_device_t and c_firmware.HilDevice differ in size")
+    _declare_core(lib)
+    return lib
+
+
+@functools.cache
+def actuation_table(actuator: Actuator, full_scale: float) -> ctypes.Array[ctypes.c_double]:
+    """(τ0, d, command) for every COMMAND count −32768…32767, at 3·(count + 32768): the actuator's shaping
+    (Actuator.torque_terms) of the command the count stands for, looked up by device.c instead of repeated."""
+    table = (ctypes.c_double * (3 * 65536))()
+    terms = actuator.torque_terms
+    values: list[float] = []
+    for counts in range(-32768, 32768):
+        u = float(counts_to_actuator(counts, full_scale))
+        values.extend((*terms(u), u))
+    table[:] = values
+    return table
+
+
+class _Held:
+    """A Firmware attribute whose value lives in C (the core, device.c), read there on access. Firmware.__init__'s
+    assignments, made before the C side exists, are what it reads meanwhile; later ones are refused."""
+
+    __slots__ = ("key", "read")
+
+    def __init__(self, read: Callable[[CFirmware], Any]) -> None:
+        self.read = read
+        self.key = ""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.key = "_before_c_" + name
+
+    def __get__(self, fw: CFirmware | None, owner: type | None = None) -> Any:
+        if fw is None:
+            return self
+        if "_d" not in fw.__dict__:
+            return fw.__dict__.get(self.key, 0)
+        return self.read(fw)
+
+    def __set__(self, fw: CFirmware, value: object) -> None:
+        if "_d" in fw.__dict__:
+            raise AttributeError(f"{self.key[10:]} is the C firmware's: it changes through the protocol only")
+        fw.__dict__[self.key] = value
+
+
+def _core_field(field: str, kind: type = int) -> _Held:
+    i = STATE_FIELDS.index(field)
+    return _Held(lambda fw: kind(fw.core_state()[i]))
+
+
 class _DecoderCounts:
     """The C stream decoder's counters, as hil_mock.device reads them from a StreamDecoder."""
 
     __slots__ = ("crc_errors", "errors", "frames_ok")
 
-    def __init__(self) -> None:
-        self.crc_errors = self.errors = self.frames_ok = 0
+    def __init__(self, crc_errors: int = 0, errors: int = 0, frames_ok: int = 0) -> None:
+        self.crc_errors, self.errors, self.frames_ok = crc_errors, errors, frames_ok
 
 
 class CFirmware(Firmware):
     """hil_mock's device with the C firmware core making every protocol decision (see the module docstring)."""
 
+    enabled = _core_field("enabled", bool)
+    _any_applied = _core_field("any_applied", bool)
+    output = _Held(lambda fw: counts_to_actuator(fw._d.output, fw.full_scale))
+    streaming = _Held(lambda fw: bool(fw._bits & _STREAMING))
+    clock_ns = _Held(lambda fw: fw._d.clock_ns)
+    period_ns = _Held(lambda fw: fw._d.period_ns)
+    plant_start_ns = _Held(lambda fw: None if fw._d.plant_start_ns < 0 else fw._d.plant_start_ns)
+    substeps_done = _Held(lambda fw: fw._d.substeps_done)
+    replacements = _Held(lambda fw: fw._d.replacements)
+    decoder = _Held(lambda fw: _DecoderCounts(*(fw.core_state()[i] for i in (_CRC_ERRORS, _ERRORS, _FRAMES_OK))))
+
     def __init__(self, rig: RigConfig, model: RigModel, settings: DeviceSettings, rate_hz: int) -> None:
         super().__init__(rig, model, settings, rate_hz)  # the plant; its Python protocol state stays unused
-        lib = self._lib = load_library()
+        lib = self._lib = load_device_library()
         cal = self.model.calibration
         off = cal.theta_offset_counts
         self.board = Board(
@@ -120,55 +242,90 @@ class CFirmware(Firmware):
             theta_adc_max=WRAPPING_RAIL if cal.theta_wraps else cal.adc_max + off,
             theta_dot_adc_min=cal.adc_min, theta_dot_adc_max=cal.adc_max,
         )
-        self._dev = ctypes.create_string_buffer(lib.host_device_size())
+        self._core = ctypes.create_string_buffer(lib.host_device_size())
         self._state = (ctypes.c_uint64 * len(STATE_FIELDS))()
-        self._tx_buf = ctypes.create_string_buffer(TX_BYTES)
-        self._tx_len = (ctypes.c_uint16 * TX_FRAMES)()
-        self._sessions_seen = 0
-        self._counts = -1  # the output counts last applied (none yet)
-        self.decoder = _DecoderCounts()  # type: ignore[assignment]
-        lib.host_device_init(self._dev, ctypes.byref(self.board))
-        self._sync()
+        lib.host_device_init(self._core, ctypes.byref(self.board))
+        d = HilDevice(fw=ctypes.cast(self._core, ctypes.c_void_p), plant_start_ns=-1, substep_hz=self.substep_hz)
+        self.fused = isinstance(self.sim, CompiledSimulator)
+        if self.fused:
+            self._attach_plant(d, cal)
+        self._d = d
+        self._dref = ctypes.byref(d)
+        self._bits = 0
+        self._after(lib.hil_poll(self._dref))
+
+    def _attach_plant(self, d: HilDevice, cal: Calibration) -> None:
+        """Point device.c at the compiled simulator's arrays, its initial state, the sensor path and the noise."""
+        sim = self.sim
+        assert isinstance(sim, CompiledSimulator)
+        m = self.model
+        d.params = ctypes.addressof(sim._params)
+        d.state, d.ring = ctypes.cast(sim._state, _DP), ctypes.cast(sim._ring, _DP)
+        d.head = ctypes.cast(ctypes.byref(sim._head), ctypes.POINTER(ctypes.c_int32))
+        d.n_delay = sim._n_delay
+        self._state0 = (ctypes.c_double * len(sim._state))(*sim._state)  # the rig at its initial state
+        self._ring0 = (ctypes.c_double * len(sim._ring))(*sim._ring)
+        d.state0, d.ring0 = ctypes.cast(self._state0, _DP), ctypes.cast(self._ring0, _DP)
+        self._actuation = actuation_table(m.actuator, self.full_scale)
+        d.actuation = ctypes.cast(self._actuation, _DP)
+        d.theta_noise, d.theta_dot_noise, d.theta_offset = m.theta_noise, m.theta_dot_noise, m.theta_offset
+        d.bessel = int(m.bessel is not None)
+        d.theta_rad_per_count, d.theta_dot_rad_s_per_count = cal.theta_rad_per_count, cal.theta_dot_rad_s_per_count
+        d.phi_rad_per_count, d.adc_bits = cal.phi_rad_per_count, cal.adc_bits
+        d.adc_min, d.adc_max, d.theta_offset_counts = cal.adc_min, cal.adc_max, cal.theta_offset_counts
+        d.theta_wraps = int(cal.theta_wraps)
+        if m.theta_noise or m.theta_dot_noise:  # the simulator's generator, drawn in blocks in the reference's order
+            self._noise0 = sim.rng.standard_normal(NOISE_BLOCK)
+            self._noise = self._noise0
+            d.noise = d.noise0 = self._noise0.ctypes.data_as(_DP)
+            d.noise_len = d.noise0_len = NOISE_BLOCK
 
     # ------------------------------------------------------------ the C side
-    def _sync(self) -> None:
-        """Read the C state after a call: frames out, counters, the actuator, a new session."""
-        lib = self._lib
-        lib.host_state(self._dev, self._state)
-        s = self._state[:]
-        if s[_TX_FRAMES]:
-            n = lib.host_take_tx(self._dev, self._tx_buf, self._tx_len)
-            raw, pos = self._tx_buf.raw, 0
-            for length in self._tx_len[:n]:
-                self.tx.append(raw[pos:pos + length])
-                pos += length
-        d = self.__dict__
-        for name, i in _COUNTER_INDEX:
-            d[name] = s[i]
-        self.streaming = bool(s[_STREAMING])
-        self.enabled = bool(s[_ENABLED])
-        self._answered = bool(s[_ANSWERED])
-        self._any_applied = bool(s[_ANY_APPLIED])
-        self._flags = s[_STATUS_FLAGS]
-        dec = self.decoder
-        dec.crc_errors, dec.errors, dec.frames_ok = s[_CRC_ERRORS], s[_ERRORS], s[_FRAMES_OK]
-        if s[_NEW_SESSIONS] != self._sessions_seen:  # a HELLO to an idle device: as Firmware._on_hello
-            self._sessions_seen = s[_NEW_SESSIONS]
-            if self.plant_start_ns is None:
-                self.plant_start_ns = self.clock_ns
-            else:
-                self.sim = self._new_plant()
-                self.replacements += 1
-                self._counts = -1  # the new plant gets the output below
-                self.output = 0.0
-        counts = s[_OUTPUT_COUNTS]
-        if counts != self._counts:  # the actuator's value only changes with the counts
-            self._counts = counts
-            self._set_output(counts_to_actuator(counts - 0x10000 if counts >= 0x8000 else counts, self.full_scale))
+    def core_state(self) -> list[int]:
+        """The core's state now, in the order of STATE_FIELDS."""
+        self._lib.host_state(self._core, self._state)
+        return self._state[:]
+
+    def _after(self, bits: int) -> None:
+        """After each call: frames out, a new session, the noise block, the Python plant's substeps."""
+        self._bits = bits
+        if bits & _SLOW:
+            d = self._d
+            if bits & _FRAMES:
+                raw = bytes(d.out[:d.out_len])
+                pos = 0
+                for length in d.out_frame_len[:d.out_frames]:
+                    self.tx.append(raw[pos:pos + length])
+                    pos += length
+                d.out_len = d.out_frames = 0
+            if bits & _NEW_SESSION:  # a HELLO to an idle device: as Firmware._on_hello
+                if self.fused:  # device.c put the state back; the generator restarts from the seed
+                    self.sim.rng = np.random.default_rng(self.settings.seed)
+                    self.sim.rng.standard_normal(NOISE_BLOCK if self.model.theta_noise or self.model.theta_dot_noise
+                                                 else 0)
+                    self._noise = self._noise0 if hasattr(self, "_noise0") else None
+                    self.sim.t = 0.0
+                else:
+                    self.sim = self._new_plant()
+            if bits & _NOISE_LOW:
+                left = self._noise[d.noise_pos:d.noise_len]
+                self._noise = np.concatenate((left, self.sim.rng.standard_normal(NOISE_BLOCK)))
+                d.noise = self._noise.ctypes.data_as(_DP)
+                d.noise_len, d.noise_pos = len(self._noise), 0
+            if bits & _NO_NOISE:
+                raise RuntimeError("hil_mock/csrc/device.c ran out of noise draws")
+        if not self.fused and self._d.pending:
+            self.sim.set_command(self.output)
+            self.sim.advance(self._d.pending)
+            self._d.pending = 0
+
+    @property
+    def answered(self) -> bool:
+        return bool(self._bits & _ANSWERED)
 
     @property
     def status_flags(self) -> int:
-        return self._flags
+        return self.core_state()[_STATUS_FLAGS]
 
     @property
     def armed(self) -> bool:
@@ -182,42 +339,46 @@ class CFirmware(Firmware):
 
     # ------------------------------------------------------------ Firmware's interface
     def receive(self, data: bytes) -> None:
-        self._lib.host_rx(self._dev, bytes(data), len(data))
-        self._sync()
+        self._after(self._lib.hil_rx(self._dref, bytes(data), len(data)))
 
     def tick(self, advance: bool = True) -> None:
-        if self.streaming:  # the HAL's readings: the ADCs and encoder of the plant now
+        if not self.fused and self._bits & _STREAMING:  # the Python plant's readings for the HAL
             raw = self.sim.sample()
-            self._lib.host_tick(self._dev, raw.theta_adc, raw.theta_dot_adc, raw.phi_count, 0)
-        else:
-            self._lib.host_tick(self._dev, 0, 0, 0, 0)
-        self._sync()
-        if advance:
-            self.advance_plant()
+            d = self._d
+            d.theta_adc, d.theta_dot_adc, d.phi_count = raw.theta_adc, raw.theta_dot_adc, raw.phi_count
+        self._after(self._lib.hil_tick(self._dref, advance))
+
+    def advance_plant(self) -> None:
+        self._after(self._lib.hil_advance(self._dref))
 
     def skip(self, periods: int) -> None:
         if periods > 0:
-            self._lib.host_skip(self._dev, periods)
-            self._sync()
-            self.advance_plant()
+            self._after(self._lib.hil_skip(self._dref, periods))
 
     def reboot(self, cause: ResetCause = ResetCause.PIN) -> None:
         self.tx.clear()
+        self._d.out_len = self._d.out_frames = 0
         self.reset_cause = cause
-        self._lib.host_reboot(self._dev, int(cause))
-        self._sync()
+        self._lib.host_reboot(self._core, int(cause))
+        self._after(self._lib.hil_poll(self._dref))
 
     def set_uart_errors(self, overruns: int, line_errors: int) -> None:
         self.uart_overruns, self.uart_line_errors = overruns, line_errors
-        self._lib.host_uart_errors(self._dev, overruns & 0xFFFFFFFF, line_errors & 0xFFFFFFFF)
+        self._lib.host_uart_errors(self._core, overruns & 0xFFFFFFFF, line_errors & 0xFFFFFFFF)
 
     def hangup(self) -> None:
-        self._lib.host_hangup(self._dev)
-        self._sync()
+        self._lib.host_hangup(self._core)
+        self._after(self._lib.hil_poll(self._dref))
 
     def note_tx_overflow(self) -> None:
-        self._lib.host_note_tx_overflow(self._dev)
-        self._sync()
+        self._lib.host_note_tx_overflow(self._core)
+        self._after(self._lib.hil_poll(self._dref))
+
+
+for _name in _COUNTERS:  # the core's counters and configuration, read where they live
+    _field = _core_field(_name)
+    _field.__set_name__(CFirmware, _name)
+    setattr(CFirmware, _name, _field)
 
 
 def make_firmware(kind: str, rig: RigConfig, model: RigModel, settings: DeviceSettings, rate_hz: int) -> Firmware:

@@ -48,6 +48,7 @@ as the firmware does for a late command). A host may leave a SAMPLE unanswered (
 the first one, which shares a read with the HELLO_ACK); the wait stays well inside the host's link timeout (0.5 s by
 default), so such a SAMPLE costs one late command, never a link loss."""
 IN_PROCESS_SWITCH_INTERVAL_S = 2e-4
+READ_BYTES = 4096
 
 
 @dataclass(frozen=True, slots=True)
@@ -296,7 +297,7 @@ class VirtualDevice:
         fw = self.firmware
         while True:
             try:
-                data = os.read(fd, 4096)
+                data = os.read(fd, READ_BYTES)
             except BlockingIOError:
                 self.connected = True
                 return
@@ -313,6 +314,8 @@ class VirtualDevice:
             if self.link.active:
                 data = self.link.rx(data)
             fw.receive(data)
+            if len(data) < READ_BYTES:  # a short read emptied the pty: no second read to learn it is empty
+                return
 
     def _hangup(self) -> None:
         self.firmware.hangup()
@@ -322,6 +325,20 @@ class VirtualDevice:
     def _write(self, now: float) -> None:
         fw = self.firmware
         link = self.link
+        if fw.tx and not self._backlog and not self.delay_s and not link.active and self._fd is not None:
+            wire = b"".join(fw.tx) if len(fw.tx) > 1 else fw.tx[0]  # the common tick: straight to the pty
+            fw.tx.clear()
+            try:
+                n = os.write(self._fd, wire)
+            except BlockingIOError:
+                n = 0
+            except OSError as err:
+                if err.errno != errno.EIO:
+                    raise
+                return
+            if n < len(wire):
+                self._queue_wire(wire[n:])
+            return
         if fw.tx:
             for frame in fw.tx:
                 wire = link.tx(frame) if link.active else frame

@@ -27,6 +27,7 @@ from furuta_rt.model.rig import RigModel
 from furuta_rt.sim.simulator import Simulator
 
 SOURCE = Path(__file__).parent / "csrc" / "plant.c"
+HEADER = SOURCE.with_suffix(".h")
 STATE = ("theta", "theta_dot", "phi", "phi_dot", "y", "y_dot", "z", "arm_friction_torque")  # then stuck (plant.c)
 
 
@@ -45,7 +46,8 @@ class PlantParams(ctypes.Structure):
 @functools.cache
 def load_library() -> ctypes.CDLL:
     """plant.c built for this machine (cached like the firmware core's host build)."""
-    lib = ctypes.CDLL(str(host_library(sources=(SOURCE,), headers=(), name="libfuruta_plant", libs=("-lm",))))
+    lib = ctypes.CDLL(str(host_library(sources=(SOURCE,), headers=(HEADER,), name="libfuruta_plant", libs=("-lm",),
+                                         include_dirs=(SOURCE.parent,))))
     lib.plant_params_size.restype = ctypes.c_uint
     if lib.plant_params_size() != ctypes.sizeof(PlantParams):
         raise RuntimeError("furuta_rt/sim/csrc/plant.c: plant_params_t and compiled.PlantParams differ in size")

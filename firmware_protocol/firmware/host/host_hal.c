@@ -25,7 +25,7 @@ struct fw_hal {
     uint16_t tx_frame_len[HOST_TX_FRAMES];
 };
 
-typedef struct {
+typedef struct host_device {
     fw_t fw;
     fw_hal_t hal;
     fw_board_t board;
@@ -83,6 +83,9 @@ void host_state(const host_device_t *dev, uint64_t *out);
 uint8_t host_command_accepted(uint32_t seq, uint8_t any_sent, uint32_t last_sent, uint8_t any_accepted,
                               uint32_t last_accepted);
 size_t host_board_size(void);
+const fw_t *host_core(const host_device_t *dev);
+uint32_t host_new_sessions(const host_device_t *dev);
+uint32_t host_tx_pending(const host_device_t *dev);
 
 size_t host_device_size(void) { return sizeof(host_device_t); }
 size_t host_board_size(void) { return sizeof(fw_board_t); }
@@ -185,3 +188,9 @@ uint8_t host_command_accepted(uint32_t seq, uint8_t any_sent, uint32_t last_sent
 {
     return fw_command_accepted(seq, any_sent, last_sent, any_accepted, last_accepted);
 }
+
+/* For a device built on top of this one (hil_mock/csrc/device.c): the core's state, HELLOs that started a new
+ * session, frames queued. */
+const fw_t *host_core(const host_device_t *dev) { return &dev->fw; }
+uint32_t host_new_sessions(const host_device_t *dev) { return dev->hal.new_sessions; }
+uint32_t host_tx_pending(const host_device_t *dev) { return dev->hal.tx_frames; }

@@ -12,17 +12,7 @@
  */
 #include <math.h>
 
-typedef struct {
-    double alpha, beta, gamma, eps;     /* lumped parameters of eq. 4 */
-    double fv_arm, bp, k, phi0;         /* arm viscous, pendulum viscous, spring */
-    double fa0, fa1, offset, bias;      /* Bessel filter, theta offset, arm bias */
-    double fc, fs;                      /* set-valued dry arm friction: sliding level, stick limit */
-    double sigma0, sigma1, l_fc, l_fs, vs, l_fv; /* LuGre */
-    double h;                           /* substep */
-    int set_valued, lugre;
-} plant_params_t;
-
-enum { TH, THD, PH, PHD, Y, YD, Z, AFT, STUCK, N_STATE };
+#include "plant.h"
 
 unsigned plant_params_size(void) { return (unsigned)sizeof(plant_params_t); }
 
@@ -168,8 +158,7 @@ static void substep(const plant_params_t *p, double *s, double tau0, double damp
     s[YD] = yd + h6 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2]);
 }
 
-/* n substeps with the actuator terms (tau0, damp) of the current command cmd; ring: n_delay entries of
- * (tau0, damp, command), the oldest at *head (the actuator's transport delay, as Simulator.advance's deque). */
+/* plant.h: n substeps with the current command's actuator terms, through the transport delay's ring. */
 void plant_advance(const plant_params_t *p, double *s, double *ring, int n_delay, int *head,
                    double tau0, double damp, double cmd, long n)
 {

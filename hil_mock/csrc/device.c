@@ -1,0 +1,245 @@
+/*
+ * device.c - hil_mock's whole device tick in C: the plant (furuta_rt/sim/csrc/plant.c), the DAQ's sensor path
+ * (noise, ADC and encoder counts) and the firmware core (firmware_protocol/firmware, host HAL), so that a tick is
+ * one call and Python only moves bytes between the pseudo-terminal and this library (hil_mock/c_firmware.py).
+ *
+ * References, held to agreement by tests/test_compiled_plant.py and tests/test_firmware_c.py:
+ *   sensor path   furuta_rt.sim.simulator.Simulator.sample, furuta_rt.model.sensors.Calibration.to_counts
+ *   device time   hil_mock.firmware.Firmware.advance_plant (the plant runs in device time from the first HELLO)
+ *   new session   hil_mock.firmware.Firmware._on_hello (a HELLO to an idle device puts the rig back)
+ * The actuator's shaping is not repeated here: the caller tabulates Actuator.torque_terms for every COMMAND count,
+ * and the noise is the simulator's own generator's draws, handed over in blocks.
+ *
+ * Without a compiled plant (params NULL: a model plant.c does not cover) the caller samples and integrates its
+ * plant itself: it sets the readings before hil_tick and runs `pending` substeps after it.
+ */
+#include <math.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "fw_core.h"
+#include "plant.h"
+
+#define HIL_OUT_BYTES 4096u /* >= 2 x host_hal.c HOST_TX_BYTES */
+#define HIL_OUT_FRAMES 128u /* >= 2 x HOST_TX_FRAMES */
+#define HOST_TX_BYTES 2048u /* host_hal.c */
+#define HOST_TX_FRAMES 64u
+
+enum {
+    HIL_STREAMING = 1,   /* the core is in a session */
+    HIL_ANSWERED = 2,    /* a COMMAND answering the last SAMPLE was accepted */
+    HIL_NEW_SESSION = 4, /* a HELLO to an idle device: the rig was put back at its initial state */
+    HIL_NOISE_LOW = 8,   /* fewer than HIL_NOISE_MARGIN noise draws left: hand over the next block */
+    HIL_FRAMES = 16,     /* frames waiting in out */
+    HIL_NO_NOISE = 32,   /* a reading found no noise draw left (the caller did not refill): the reading is wrong */
+};
+#define HIL_NOISE_MARGIN 64u
+
+typedef struct host_device host_device_t; /* host_hal.c */
+void host_rx(host_device_t *dev, const uint8_t *data, size_t len);
+void host_tick(host_device_t *dev, int16_t theta_adc, int16_t theta_dot_adc, int32_t phi_count, uint8_t encoder_fault);
+void host_skip(host_device_t *dev, uint32_t periods);
+uint32_t host_take_tx(host_device_t *dev, uint8_t *out, uint16_t *frame_len);
+const fw_t *host_core(const host_device_t *dev);
+uint32_t host_new_sessions(const host_device_t *dev);
+uint32_t host_tx_pending(const host_device_t *dev);
+
+typedef struct {
+    host_device_t *fw;              /* the firmware core with its host HAL */
+    /* the plant (plant.c) and the rig at its initial state, which a new session starts from */
+    const plant_params_t *params;   /* NULL: the caller's plant */
+    double *state, *ring;
+    int32_t *head;
+    int32_t n_delay;
+    const double *state0, *ring0;
+    const double *actuation;        /* (tau0, damp, command) of COMMAND count c at 3 * (c + 32768) */
+    /* the sensor path */
+    const double *noise, *noise0;   /* standard normal draws: the live block, and the first block of the seed */
+    uint32_t noise_len, noise_pos, noise0_len;
+    double theta_noise, theta_dot_noise, theta_offset;
+    double theta_rad_per_count, theta_dot_rad_s_per_count, phi_rad_per_count;
+    int32_t adc_min, adc_max, theta_offset_counts, theta_wraps, adc_bits, bessel;
+    /* device time -> plant time */
+    double substep_hz;
+    int64_t plant_start_ns;         /* -1: held at its initial state until the first HELLO */
+    int64_t substeps_done, pending;
+    uint32_t sessions_seen, replacements;
+    /* the core after the last call: its clock, period and actuator counts */
+    uint64_t clock_ns;
+    uint32_t period_ns;
+    int32_t output;
+    /* readings of the caller's plant (params NULL) */
+    int32_t theta_adc, theta_dot_adc, phi_count;
+    /* frames out, in order: bytes and each frame's length; the caller empties it (out_len = out_frames = 0) */
+    uint32_t out_len, out_frames;
+    uint16_t out_frame_len[HIL_OUT_FRAMES];
+    uint8_t out[HIL_OUT_BYTES];
+} hil_device_t;
+
+size_t hil_device_size(void);
+uint32_t hil_rx(hil_device_t *d, const uint8_t *data, size_t len);
+uint32_t hil_tick(hil_device_t *d, int advance);
+uint32_t hil_advance(hil_device_t *d);
+uint32_t hil_skip(hil_device_t *d, uint32_t periods);
+uint32_t hil_poll(hil_device_t *d);
+
+size_t hil_device_size(void) { return sizeof(hil_device_t); }
+
+/* One quantiser reading: the nearest level, ties up (sensors.count_of). */
+static double count_of(double x, double step) { return floor(x / step + 0.5); }
+
+static int32_t adc(const hil_device_t *d, double count)
+{
+    if (count > d->adc_max) {
+        return d->adc_max;
+    }
+    if (count < d->adc_min) {
+        return d->adc_min;
+    }
+    return (int32_t)count;
+}
+
+static double next_noise(hil_device_t *d, uint32_t *status)
+{
+    if (d->noise_pos >= d->noise_len) {
+        *status |= HIL_NO_NOISE;
+        return 0.0;
+    }
+    return d->noise[d->noise_pos++];
+}
+
+/* Simulator.sample and Calibration.to_counts: (theta, theta_dot, phi) counts as the DAQ reads them. */
+static void sense(hil_device_t *d, int32_t out[3], uint32_t *status)
+{
+    const double *s = d->state;
+    double th = d->bessel ? s[Y] : s[TH] + d->theta_offset;
+    double thd = d->bessel ? s[YD] : s[THD];
+    if (d->theta_noise != 0.0) {
+        th += d->theta_noise * next_noise(d, status);
+    }
+    if (d->theta_dot_noise != 0.0) {
+        thd += d->theta_dot_noise * next_noise(d, status);
+    }
+    double t = count_of(th, d->theta_rad_per_count);
+    int32_t theta;
+    if (d->theta_wraps) {
+        int64_t span = (int64_t)1 << d->adc_bits, r = ((int64_t)t - d->adc_min) % span;
+        theta = (int32_t)((r < 0 ? r + span : r) + d->adc_min);
+    } else {
+        theta = adc(d, t);
+    }
+    out[0] = theta + d->theta_offset_counts;
+    out[1] = adc(d, count_of(thd, d->theta_dot_rad_s_per_count));
+    out[2] = (int32_t)(int64_t)count_of(s[PH], d->phi_rad_per_count);
+}
+
+/* Firmware.advance_plant: the plant up to the device clock, driven by the actuator's present counts. */
+static void advance(hil_device_t *d)
+{
+    const fw_t *fw = host_core(d->fw);
+    if (d->plant_start_ns < 0) {
+        return;
+    }
+    int64_t target = (int64_t)nearbyint((double)((int64_t)fw->clock_ns - d->plant_start_ns) * d->substep_hz * 1e-9);
+    int64_t n = target - d->substeps_done;
+    if (n <= 0) {
+        return;
+    }
+    d->substeps_done = target;
+    if (d->params == NULL) {
+        d->pending += n;
+        return;
+    }
+    const double *a = d->actuation + 3 * ((int32_t)fw->output + 32768);
+    plant_advance(d->params, d->state, d->ring, d->n_delay, d->head, a[0], a[1], a[2], (long)n);
+}
+
+/* After every call: a new session (Firmware._on_hello), frames out, the status bits. */
+static uint32_t finish(hil_device_t *d, uint32_t status)
+{
+    const fw_t *fw = host_core(d->fw);
+    uint32_t sessions = host_new_sessions(d->fw);
+    if (sessions != d->sessions_seen) {
+        d->sessions_seen = sessions;
+        if (d->plant_start_ns < 0) {
+            d->plant_start_ns = (int64_t)fw->clock_ns;
+        } else {
+            d->replacements++;
+            status |= HIL_NEW_SESSION;
+            if (d->params != NULL) {
+                memcpy(d->state, d->state0, N_STATE * sizeof *d->state);
+                memcpy(d->ring, d->ring0, 3 * (size_t)d->n_delay * sizeof *d->ring);
+                *d->head = 0;
+                d->noise = d->noise0;
+                d->noise_len = d->noise0_len;
+                d->noise_pos = 0;
+            }
+        }
+    }
+    if (host_tx_pending(d->fw) && d->out_len <= HIL_OUT_BYTES - HOST_TX_BYTES &&
+        d->out_frames <= HIL_OUT_FRAMES - HOST_TX_FRAMES) {
+        uint32_t n = host_take_tx(d->fw, d->out + d->out_len, d->out_frame_len + d->out_frames);
+        for (uint32_t i = 0; i < n; i++) {
+            d->out_len += d->out_frame_len[d->out_frames + i];
+        }
+        d->out_frames += n;
+    }
+    d->clock_ns = fw->clock_ns;
+    d->period_ns = fw->period_ns;
+    d->output = fw->output;
+    if (d->out_frames) {
+        status |= HIL_FRAMES;
+    }
+    if (d->params != NULL && (d->theta_noise != 0.0 || d->theta_dot_noise != 0.0) &&
+        d->noise_len - d->noise_pos < HIL_NOISE_MARGIN) {
+        status |= HIL_NOISE_LOW;
+    }
+    return status | (fw->streaming ? HIL_STREAMING : 0u) | (fw->answered ? HIL_ANSWERED : 0u);
+}
+
+uint32_t hil_rx(hil_device_t *d, const uint8_t *data, size_t len)
+{
+    host_rx(d->fw, data, len);
+    return finish(d, 0u);
+}
+
+/* One timer period: the ADCs and the encoder latched (streaming), the core's tick (SAMPLE out, COMMAND applied),
+ * then, with `advance`, the plant integrated to the next tick (else hil_advance, after the SAMPLE is written). */
+uint32_t hil_tick(hil_device_t *d, int advance_plant)
+{
+    uint32_t status = 0u;
+    int32_t r[3] = {0, 0, 0};
+    if (host_core(d->fw)->streaming) {
+        if (d->params != NULL) {
+            sense(d, r, &status);
+        } else {
+            r[0] = d->theta_adc;
+            r[1] = d->theta_dot_adc;
+            r[2] = d->phi_count;
+        }
+    }
+    host_tick(d->fw, (int16_t)r[0], (int16_t)r[1], r[2], 0u);
+    if (advance_plant) {
+        advance(d);
+    }
+    return finish(d, status);
+}
+
+uint32_t hil_advance(hil_device_t *d)
+{
+    advance(d);
+    return finish(d, 0u);
+}
+
+/* The timer fired `periods` times without the tick running: the core's clock moves on, the plant with it. */
+uint32_t hil_skip(hil_device_t *d, uint32_t periods)
+{
+    host_skip(d->fw, periods);
+    advance(d);
+    return finish(d, 0u);
+}
+
+/* After a call made on the core directly (host_hangup, host_reboot, ...). */
+uint32_t hil_poll(hil_device_t *d) { return finish(d, 0u); }
+
