@@ -282,6 +282,11 @@ def test_a_log_cut_short_while_replay_reads_it_is_one_line_exit_2_not_a_bus_erro
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["plain.mcap", "run.mcap"]
 
 
+HELPER_ALWAYS = {**os.environ, "FURUTA_RT_DESIGN_CACHE": "0"}
+"""A run's environment where its controller design helper always starts (no design kept from an earlier run): the
+start-up tests below find the logger as the second 'spawn' child, beside the helper."""
+
+
 def _spawned(daemon: DaemonProcess) -> list[int]:
     """pids of the daemon's 'spawn' children in the order they started: the controller's design helper (first, gone
     before the first tick), then the logger."""
@@ -330,7 +335,8 @@ def test_the_loser_of_a_race_for_the_live_view_port_says_so_and_advertises_nothi
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     log = tmp_path / "run.mcap"
-    daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "5", "--log", str(log), f"--foxglove={port}"])
+    daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "5", "--log", str(log), f"--foxglove={port}"],
+                           env=HELPER_ALWAYS)
     winner = socket.socket()
     try:
         logger = _starting_logger(daemon)
@@ -389,7 +395,8 @@ def test_a_logger_killed_mid_run_is_said_at_once_and_loses_nothing_it_wrote(tmp_
 def test_a_logger_killed_during_start_up_is_one_line_at_once(tmp_path: Path) -> None:
     """The logger dies while it starts (its imports take seconds): one line naming it, exit 2, well before the
     60 s start-up timeout, no device streaming."""
-    daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "5", "--log", str(tmp_path / "run.mcap")])
+    daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "5", "--log", str(tmp_path / "run.mcap")],
+                           env=HELPER_ALWAYS)
     try:
         logger = _starting_logger(daemon)
         assert logger is not None, daemon.stderr
@@ -406,7 +413,8 @@ def test_a_logger_killed_during_start_up_is_one_line_at_once(tmp_path: Path) -> 
 def test_the_controller_design_helper_killed_during_start_up_is_one_line(tmp_path: Path) -> None:
     """The gains and observer matrices are made in a helper process before the first tick (scipy stays out of the
     real-time process): its death is one line naming it, exit 2, no device streaming, not a hang."""
-    daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "5", "--log", str(tmp_path / "run.mcap")])
+    daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "5", "--log", str(tmp_path / "run.mcap")],
+                           env=HELPER_ALWAYS)
     try:
         _starting_logger(daemon)
         os.kill(_spawned(daemon)[0], signal.SIGKILL)

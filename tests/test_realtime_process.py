@@ -49,3 +49,70 @@ def test_the_control_process_holds_no_scipy_and_no_blas_threads(tmp_path: Path) 
     spawned = [c for c in children if "spawn_main" in c]
     assert len(spawned) == 1 and sum("hil_mock" in c for c in children) == 1, \
         f"the logger and the mock run beside it, the design helper has ended: {children}"
+
+
+# ------------------------------------------------------------------ the controller design kept between runs
+def _same_design(a: object, b: object) -> bool:
+    """Bit for bit: the gains and every matrix of the observer."""
+    import dataclasses
+
+    import numpy as np
+
+    fields = [f.name for f in dataclasses.fields(a.observer)]  # type: ignore[attr-defined]
+    return np.array_equal(a.gains, b.gains) and all(  # type: ignore[attr-defined]
+        np.array_equal(getattr(a.observer, f), getattr(b.observer, f)) for f in fields)  # type: ignore[attr-defined]
+
+
+def test_a_kept_design_is_the_helpers_bit_for_bit_and_starts_no_helper(tmp_path: Path, monkeypatch) -> None:
+    """The first run of a rig makes its design in the helper and keeps it; the next one starts no helper and gets
+    the same arrays, which are those ``controller_design`` makes in-process. Another rig value or other gains make
+    their own; a torn file is made again (and replaced); FURUTA_RT_DESIGN_CACHE=0 keeps nothing."""
+    from furuta_rt.config import load_rig
+    from furuta_rt.controller.controller import controller_design
+    from furuta_rt.runtime.design_process import DesignProcess
+
+    monkeypatch.setenv("FURUTA_RT_BUILD_DIR", str(tmp_path))
+    rig = load_rig("thesis")
+    first = DesignProcess(rig, None)
+    assert not first.kept
+    made = first.result()
+    kept_files = list((tmp_path / "designs").glob("design-*.npz"))
+    assert len(kept_files) == 1
+    second = DesignProcess(rig, None)
+    assert second.kept and _same_design(second.result(), made) and _same_design(made, controller_design(rig))
+    assert isinstance(second.result().observer.R, float)
+    # another rate (the observer is discretised at the period) and other gains are other designs
+    faster = rig.model_copy(update={"control": rig.control.model_copy(update={"rate_hz": 1000.0})})
+    assert not DesignProcess(faster, None).kept and not DesignProcess(rig, [10.0, 1.0, 0.1, 0.2]).kept
+    # a torn file: made again by a helper, and replaced
+    kept_files[0].write_bytes(kept_files[0].read_bytes()[:100])
+    torn = DesignProcess(rig, None)
+    assert not torn.kept and _same_design(torn.result(), made)
+    assert DesignProcess(rig, None).kept
+    monkeypatch.setenv("FURUTA_RT_DESIGN_CACHE", "0")
+    off = DesignProcess(rig, None)
+    assert not off.kept
+    off.close()
+
+
+def test_the_design_key_follows_the_rig_the_gains_and_the_source(tmp_path: Path, monkeypatch) -> None:
+    """Any rig value, the gains, or one byte of furuta_rt's source gives another key: a kept design is never one
+    an edited controller or model would compute differently."""
+    import shutil
+
+    from furuta_rt.config import load_rig
+    from furuta_rt.runtime import design_process
+
+    rig = load_rig("thesis")
+    key = design_process.design_key(rig, None)
+    assert design_process.design_key(load_rig("thesis"), None) == key
+    plant = rig.plant.model_copy(update={"m": rig.plant.m * 1.001})
+    assert design_process.design_key(rig.model_copy(update={"plant": plant}), None) != key
+    assert design_process.design_key(rig, [1.0, 2.0, 3.0, 4.0]) != key
+    copy = tmp_path / "furuta_rt"
+    shutil.copytree(design_process.PACKAGE_DIR, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    monkeypatch.setattr(design_process, "PACKAGE_DIR", copy)
+    assert design_process.design_key(rig, None) == key
+    with (copy / "controller" / "observer.py").open("a") as f:
+        f.write("\n")
+    assert design_process.design_key(rig, None) != key

@@ -24,13 +24,16 @@ COMMANDS = ("analyze", "convert", "design", "diagnose", "experiment", "repair", 
 """The subcommand modules of this package, in the order ``--help`` lists them."""
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every command, or of ``command`` alone (one of COMMANDS): a command's run then imports its
+    own module only, not the others' libraries (rich, the replay's plotting, the diagnosis) — in ``run``'s case
+    the real-time process, which mlockall then holds in memory."""
     parser = OneLineParser(
         prog="furuta-rt",
         description="Real-time control, logging and physics diagnosis for a Furuta pendulum rig.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in COMMANDS:
+    for name in (command,) if command in COMMANDS else COMMANDS:
         importlib.import_module(f"{__name__}.{name}").register(sub)
     return parser
 
@@ -43,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
 
         lean_process()
     try:
-        parser = _build_parser_uninterrupted()
+        parser = _build_parser_uninterrupted(words[0] if words else None)
         args, extra = parser.parse_known_args(argv)
         if extra:  # blamed on the command that was given them, not on furuta-rt
             commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
@@ -80,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
             _ignore_stop_signals()
 
 
-def _build_parser_uninterrupted() -> argparse.ArgumentParser:
+def _build_parser_uninterrupted(command: str | None) -> argparse.ArgumentParser:
     """``build_parser`` (it imports every command module) with the stop signals held until it returns: an
     interrupt inside an import can surface as some other error (numpy turns it into an ImportError), so it
     is taken after the imports, as ``KeyboardInterrupt`` (exit 128 + signum)."""
@@ -89,9 +92,9 @@ def _build_parser_uninterrupted() -> argparse.ArgumentParser:
     try:
         old = {getattr(signal, n): signal.signal(getattr(signal, n), lambda signum, _f: held.append(signum)) for n in names}
     except ValueError:  # not the main thread: nothing to hold
-        return build_parser()
+        return build_parser(command)
     try:
-        parser = build_parser()
+        parser = build_parser(command)
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)
