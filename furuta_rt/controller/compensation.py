@@ -169,10 +169,13 @@ class Compensator:
             self.adaptive.reset()
 
     def __call__(self, v_hat: float, u_lin: float) -> float:
+        """F̂ for this tick from the estimated arm velocity φ̂̇ (``v_hat``) and the linear command ``u_lin`` (the
+        external torque of eq. 2); LuGre's bristle state advances by one period."""
         lugre = self._lugre
         if lugre is not None:
-            self.z, z_dot = lugre.advance(self.z, v_hat, self._h)
-            return lugre.force(self.z, z_dot, v_hat)
+            z, z_dot = lugre.advance(self.z, v_hat, self._h)
+            self.z = z
+            return lugre.force(z, z_dot, v_hat)
         law = self._law
         if law is None:
             return 0.0

@@ -127,6 +127,7 @@ class Controller:
         self.l1, self.l2, self.l3, self.l4 = (float(v) for v in gains)
         self.observer = observer
         self.compensator = compensator
+        self._compensate = compensator.__call__  # bound once: calling the instance goes through its type every tick
         self._no_compensation = compensator.law is None
         self.u_limit = u_limit
         self._pending: deque[float] = deque([0.0] * command_delay_ticks)
@@ -262,7 +263,7 @@ class Controller:
             u_comp = 0.0
         else:
             cpt = self.command_per_torque
-            u_comp = compensator(phi_dot, u_lin / cpt) * cpt
+            u_comp = self._compensate(phi_dot, u_lin / cpt) * cpt
         u = u_lin + u_comp
         lim = self.u_limit
         saturated = False
