@@ -52,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "(θ = π, for a swing-up)")
     p.add_argument("--substep-hz", type=float, metavar="HZ", help="physics substep rate (default 10000)")
     p.add_argument("--pacing", choices=("realtime", "free", "lockstep"), help="default realtime")
-    p.add_argument("--spin-us", type=float, metavar="US", help="busy-wait before each deadline (default 100)")
+    p.add_argument("--spin-us", type=float, metavar="US", help="longest busy-wait before a deadline (default 100)")
     p.add_argument("--priority", choices=("normal", "realtime"),
                    help="realtime (default): SCHED_FIFO for the device thread if permitted, else nice -10")
     p.add_argument("--firmware", choices=("python", "c", "board"),

@@ -15,7 +15,7 @@ A mock TOML file (all tables optional)::
     device_id = 0x4D4F434B          # "MOCK"
     substep_hz = 10000              # physics substep of the core simulator
     pacing = "realtime"             # realtime | free (as fast as possible) | lockstep (wait for each COMMAND)
-    spin_us = 100                   # busy-wait this long before each deadline (after a sleep)
+    spin_us = 100                   # the longest busy-wait before a deadline (the wait follows the sleeps' overshoot)
     priority = "realtime"           # SCHED_FIFO for the device thread if permitted (else nice -10); or "normal"
     late_threshold_us = 250         # a tick starting later than this is counted late (default: period / 4)
     firmware = "c"                  # device logic: the microcontroller's C core built for this machine, or "python"

@@ -38,7 +38,7 @@ from hil_mock.c_firmware import make_firmware
 from hil_mock.config import MockConfig
 from hil_mock.faults import FaultEvent, LinkFaults
 from hil_mock.ptyport import open_raw_pty
-from hil_mock.timing import TickTiming, raise_priority, set_timer_slack, wait_until
+from hil_mock.timing import DeadlineWaiter, TickTiming, raise_priority, set_timer_slack
 
 TX_BACKLOG_MAX = 4096
 """Bytes the device buffers when the host does not read; beyond it whole frames are dropped (TX_OVERFLOW)."""
@@ -89,6 +89,11 @@ class DeviceStats:
     rx_bytes_dropped: int
     wall_s: float
     plant_s: float
+    cpu_s: float = 0.0  # CPU time of the device's loop (its thread) over wall_s
+    pty_reads: int = 0  # system calls on the pty: read (one that found nothing included), write, select
+    pty_writes: int = 0
+    pty_selects: int = 0
+    spin_us: float = 0.0  # the busy wait before a real-time deadline, as learned by the end
     friction_steps: int = 0
     arm_coulomb: float = 0.0  # the arm's Coulomb level at the end (after any friction_step), N m
     pushes: int = 0
@@ -97,8 +102,13 @@ class DeviceStats:
     def realtime_factor(self) -> float:
         return self.plant_s / self.wall_s if self.wall_s > 0 else 0.0
 
+    @property
+    def cpu_per_tick_us(self) -> float:
+        """The loop's CPU per streaming tick, µs (pacing waits that spin included, sleeps not)."""
+        return self.cpu_s / self.ticks * 1e6 if self.ticks else 0.0
+
     def as_dict(self) -> dict[str, Any]:
-        return {**asdict(self), "realtime_factor": self.realtime_factor}
+        return {**asdict(self), "realtime_factor": self.realtime_factor, "cpu_per_tick_us": self.cpu_per_tick_us}
 
     def summary(self) -> str:
         """Human-readable block, as printed by ``hil-mock`` on exit."""
@@ -108,7 +118,7 @@ class DeviceStats:
             f"hil-mock: timing: late ticks {self.late_ticks} (> {self.late_threshold_us:.0f} µs), overruns "
             f"{self.overruns} ({self.missed_periods} periods skipped), lateness worst {self.worst_lateness_us:.0f} µs "
             f"mean {self.mean_lateness_us:.1f} µs p99 < {self.p99_lateness_us:g} µs, work worst "
-            f"{self.worst_work_us:.0f} µs mean {self.mean_work_us:.1f} µs",
+            f"{self.worst_work_us:.0f} µs mean {self.mean_work_us:.1f} µs, CPU {self.cpu_per_tick_us:.1f} µs per tick",
             f"hil-mock: link: commands rx {self.commands_rx} applied {self.commands_applied} discarded "
             f"{self.commands_discarded}, watchdog trips {self.watchdog_trips}, rx frames {self.frames_rx} crc errors "
             f"{self.crc_errors} frame errors {self.frame_errors}, handshakes {self.handshakes} (refused "
@@ -141,7 +151,7 @@ class VirtualDevice:
         self.link = LinkFaults(f.corrupt_rate, f.drop_rate, f.rx_corrupt_rate, f.rx_drop_rate, f.seed)
         self.delay_s = f.delay_ms / 1000.0
         self.pacing = dev.pacing
-        self._spin_s = dev.spin_us * 1e-6
+        self.waiter = DeadlineWaiter(dev.spin_us * 1e-6)
         self._events: list[FaultEvent] = f.events()
         if model.arm_friction.lugre is not None and any(e.kind == "friction_step" for e in self._events):
             raise UserError("fault friction_step sets the arm's Coulomb level; this rig's arm friction is LuGre "
@@ -161,10 +171,14 @@ class VirtualDevice:
         self.stalls = 0
         self.pushes = 0
         self.priority = "normal"
+        self.pty_reads = self.pty_writes = self.pty_selects = 0
+        self._drained = False  # the last read ended short: the pty was empty
         threshold = dev.late_threshold_us * 1e-6 if dev.late_threshold_us else 0.25 / self.firmware.rate_hz
         self.timing = TickTiming(threshold)
         self._t_start = 0.0
         self._t_end: float | None = None
+        self._cpu_clock: int | None = None
+        self._cpu_start = self._cpu_s = 0.0
         self._fd, self.port = open_raw_pty()
 
     # ------------------------------------------------------------ lifecycle
@@ -296,6 +310,7 @@ class VirtualDevice:
             return
         fw = self.firmware
         while True:
+            self.pty_reads += 1
             try:
                 data = os.read(fd, READ_BYTES)
             except BlockingIOError:
@@ -311,10 +326,12 @@ class VirtualDevice:
             if not data:
                 return
             self.connected = True
+            short = len(data) < READ_BYTES
             if self.link.active:
                 data = self.link.rx(data)
             fw.receive(data)
-            if len(data) < READ_BYTES:  # a short read emptied the pty: no second read to learn it is empty
+            if short:  # a short read emptied the pty: no second read to learn it is empty
+                self._drained = True
                 return
 
     def _hangup(self) -> None:
@@ -328,6 +345,7 @@ class VirtualDevice:
         if fw.tx and not self._backlog and not self.delay_s and not link.active and self._fd is not None:
             wire = b"".join(fw.tx) if len(fw.tx) > 1 else fw.tx[0]  # the common tick: straight to the pty
             fw.tx.clear()
+            self.pty_writes += 1
             try:
                 n = os.write(self._fd, wire)
             except BlockingIOError:
@@ -351,6 +369,7 @@ class VirtualDevice:
         while delayed and delayed[0][0] <= now:
             self._queue_wire(delayed.popleft()[1])
         if self._backlog and self._fd is not None:
+            self.pty_writes += 1
             try:
                 n = os.write(self._fd, self._backlog)
             except BlockingIOError:
@@ -373,6 +392,7 @@ class VirtualDevice:
         fd = self._fd
         if fd is None:
             return False
+        self.pty_selects += 1
         try:
             r, _, _ = select.select([fd], [], [], timeout)
         except (OSError, ValueError):
@@ -388,10 +408,13 @@ class VirtualDevice:
         fw = self.firmware
         timing = self.timing
         pc = time.perf_counter
-        spin = self._spin_s
+        wait = self.waiter.wait
         self._t_start = t_base = pc() - fw.clock_ns * 1e-9
         self._t_end = None
+        self._cpu_clock = time.pthread_getcpuclockid(threading.get_ident())
+        self._cpu_start = time.clock_gettime(self._cpu_clock)
         realtime = True
+        drained = False
         stop = self._stop
         actions = self._actions
         try:
@@ -405,7 +428,7 @@ class VirtualDevice:
                 streaming = fw.streaming
                 if realtime:
                     deadline = t_base + fw.clock_ns * 1e-9
-                    wait_until(deadline, spin if streaming else 0.0)
+                    wait(deadline, streaming)
                     now = pc()
                     lateness = now - deadline
                     period = fw.period_ns * 1e-9
@@ -423,7 +446,10 @@ class VirtualDevice:
                     now = pc()
                     t_base = now - fw.clock_ns * 1e-9
                     lateness = 0.0
-                self._read()
+                if drained:  # lockstep: the wait for the COMMAND just emptied the pty; a read would find nothing
+                    drained = False
+                else:
+                    self._read()
                 streaming = fw.streaming
                 fw.tick(advance=False)
                 self._write(now)  # the SAMPLE leaves at the tick, as the firmware's DMA sends it
@@ -435,16 +461,19 @@ class VirtualDevice:
                 elif self.pacing == "free":
                     realtime = False
                 else:  # lockstep: the next tick when the COMMAND answering the SAMPLE just sent arrived (or waited in vain)
-                    self._await_answer(pc() + LOCKSTEP_TIMEOUT_S)
+                    drained = self._await_answer(pc() + LOCKSTEP_TIMEOUT_S) and self._drained
                     realtime = False
         finally:
             with contextlib.suppress(OSError):  # what the host sent last (its STOP) reaches the firmware before it stops
                 self._read()
             fw.hangup()
             self._close()
+            self._cpu_s = time.clock_gettime(self._cpu_clock) - self._cpu_start
+            self._cpu_clock = None
 
     def _await_answer(self, until: float) -> bool:
         fw = self.firmware
+        self._drained = False
         while not fw.answered:
             if self._stop.is_set() or self._fd is None:
                 return True
@@ -461,6 +490,16 @@ class VirtualDevice:
         return True
 
     # ------------------------------------------------------------ stats
+    def _cpu_used(self) -> float:
+        """CPU seconds of the serving thread: so far while it runs, else over its run."""
+        clock = self._cpu_clock
+        if clock is None:
+            return self._cpu_s
+        try:
+            return time.clock_gettime(clock) - self._cpu_start
+        except OSError:  # the thread just ended
+            return self._cpu_s
+
     @property
     def stats(self) -> DeviceStats:
         fw = self.firmware
@@ -504,7 +543,12 @@ class VirtualDevice:
             rx_bytes_dropped=link.rx_dropped,
             wall_s=max(end - self._t_start, 0.0) if self._t_start else 0.0,
             plant_s=fw.plant_time,
+            cpu_s=self._cpu_used(),
             friction_steps=self.friction_steps,
             arm_coulomb=fw.model.arm_friction.dry.sliding_level if fw.model.arm_friction.dry is not None else 0.0,
             pushes=self.pushes,
+            pty_reads=self.pty_reads,
+            pty_writes=self.pty_writes,
+            pty_selects=self.pty_selects,
+            spin_us=self.waiter.spin_s * 1e6,
         )

@@ -688,11 +688,17 @@ def bench_mock(quick: bool) -> dict[str, Any]:
     eff = [x for e in bm.LUGRE for x in ("--effect", e)]
     seconds = 3.0 if quick else 10.0
     rtf_pty, host, dev = bm.pty_factor(eff, rate, "free", seconds)
-    ceiling = bm.pty_ceiling(rate, seconds)
+    before = bm.pty_ceiling(rate, seconds)  # the ceiling just before and just after the lockstep run: the load drifts
     rtf_lock, lock_host, lock_dev = bm.pty_factor(eff, rate, "lockstep", seconds)
+    after = bm.pty_ceiling(rate, seconds)
+    ceiling = {k: (before[k] + after[k]) / 2 for k in ("real_time_factor", "round_trip_us", "device_cpu_us")}
+    _, rt_host, rt_dev = bm.pty_factor(eff, rate, "realtime", seconds)
     period_us = 1e6 / rate
+    ticks = max(lock_dev["ticks"], 1)
     return {
         "pty_ceiling_real_time_factor": ceiling["real_time_factor"], "pty_round_trip_us": ceiling["round_trip_us"],
+        "pty_ceiling_before_after": [before["real_time_factor"], after["real_time_factor"]],
+        "pty_ceiling_device_priority": before.get("priority"), "pty_ceiling_device_cpu_us": ceiling["device_cpu_us"],
         "lockstep_of_ceiling": rtf_lock / ceiling["real_time_factor"],
         "effects": " ".join(bm.LUGRE),
         "core_tick_us": tick_us, "core_real_time_factor": period_us / tick_us,
@@ -701,7 +707,13 @@ def bench_mock(quick: bool) -> dict[str, Any]:
         "pty_real_time_factor": rtf_pty, "pty_device_work_us": dev["mean_work_us"],
         "pty_samples": host["samples"], "pty_seq_gaps": host["seq_gaps"],
         "lockstep_real_time_factor": rtf_lock, "lockstep_device_work_us": lock_dev["mean_work_us"],
+        "lockstep_device_cpu_us": lock_dev["cpu_per_tick_us"],
+        "lockstep_pty_calls_per_tick": {k: lock_dev[f"pty_{k}"] / ticks for k in ("writes", "selects", "reads")},
         "lockstep_samples": lock_host["samples"], "lockstep_command_late": lock_host["command_late"],
+        "realtime_device_cpu_us": rt_dev["cpu_per_tick_us"], "realtime_spin_us": rt_dev["spin_us"],
+        "realtime_lateness_mean_us": rt_dev["mean_lateness_us"], "realtime_late_ticks": rt_dev["late_ticks"],
+        "realtime_overruns": rt_dev["overruns"], "realtime_command_late": rt_host["command_late"],
+        "realtime_samples": rt_host["samples"],
         "target": ">= 20x real time at 1 kHz (over the pty, lockstep)", "met": rtf_lock >= 20.0,
     }
 
@@ -1169,8 +1181,17 @@ def table(res: dict[str, Any]) -> list[dict[str, Any]]:
         row("— the pty's own lockstep ceiling (two bare processes answering frame for frame, same run)",
             f"{m['pty_ceiling_real_time_factor']:.1f}× real time (round trip {m['pty_round_trip_us']:.0f} µs)",
             "hil-mock lockstep", f"hil-mock reaches {100 * m['lockstep_of_ceiling']:.0f}% of it")
+        calls = m["lockstep_pty_calls_per_tick"]
+        row("— hil-mock's device per lockstep tick: CPU, pty system calls",
+            f"{m['lockstep_device_cpu_us']:.0f} µs; {calls['writes']:.2f} writes, {calls['selects']:.2f} selects, "
+            f"{calls['reads']:.2f} reads", f"the bare pair's device side: {m['pty_ceiling_device_cpu_us']:.0f} µs; 1 write, "
+            "1 select, 1 read", f"{m['lockstep_device_cpu_us'] / m['pty_ceiling_device_cpu_us']:.1f}× the CPU")
         row("hil-mock 1 kHz, LuGre, over a pty, free-running", f"{m['pty_real_time_factor']:.1f}× real time",
             "real time", f"{m['pty_real_time_factor']:.1f}×")
+        row("hil-mock 1 kHz real-time pacing: device CPU per tick",
+            f"{m['realtime_device_cpu_us']:.0f} µs (spin {m['realtime_spin_us']:.0f} µs, lateness mean "
+            f"{m['realtime_lateness_mean_us']:.0f} µs)", "1 kHz period 1000 µs",
+            f"{m['realtime_device_cpu_us'] / 10:.1f}% of a core")
         row("hil-mock 1 kHz, device tick in-process (C firmware, compiled plant)", f"{m['core_tick_us']:.1f} µs",
             f"Python device {m['reference_core_tick_us']:.0f} µs",
             f"{m['reference_core_tick_us'] / m['core_tick_us']:.1f}× faster; "
