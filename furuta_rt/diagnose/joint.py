@@ -95,6 +95,10 @@ class JointContext:
         return self._cat(lambda c: c.arm_dJ)
 
     @property
+    def arm_m22(self) -> np.ndarray:
+        return self._cat(lambda c: c.arm_m22)
+
+    @property
     def arm_pendulum_part(self) -> np.ndarray:
         return self._cat(lambda c: c.arm_pendulum_part)
 

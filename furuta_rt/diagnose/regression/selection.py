@@ -17,6 +17,7 @@ A backward pass then drops any effect whose removal costs less than ``min_gain``
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -141,6 +142,37 @@ class EquationModel:
             y, X = y * w, X * np.asarray(w)[:, None]
         return Stats.of(y, X, self.blocks), owners
 
+    def profile(self, spec: Spec, kind: str) -> Callable[[float], Stats]:
+        """value → ``stats(spec.with_value(kind, value))[0]``, with what does not change along the profile taken once, on
+        the equation's rows only: the design when no column moves with the command path or the Stribeck speed, and
+        the arm's residual, ∂ID/∂J and M22 for an inertia (ID is linear in J). The same arithmetic, element by element,
+        as ``stats``: the same numbers."""
+        rows = self.blocks.rows
+        if kind == "inertia" and self.equation == ARM:
+            X, _ = self.design(spec)  # the columns do not depend on ΔJ; the residual is linear in it (arm_residual)
+            Xr, y0 = X[rows], self.target(spec.with_value(kind, 0.0))[rows]
+            dJ, m22 = self.ctx.arm_dJ[rows], self.ctx.arm_m22[rows]
+
+            def inertia(value: float) -> Stats:
+                if not value:
+                    return Stats.of_rows(y0, Xr, self.blocks)
+                w = m22 / (m22 + value)
+                return Stats.of_rows((y0 + value * dJ) * w, Xr * w[:, None], self.blocks)
+
+            return inertia
+        if kind in ("inertia", "vs") or any(CANDIDATES[e].effect.varying for e in spec.effects):
+            return lambda value: self.stats(spec.with_value(kind, value))[0]
+        X, _ = self.design(spec)  # the same columns at every value of the command path's parameter
+        w = self.ctx.arm_weight(spec.d_inertia) if self.equation == ARM and spec.d_inertia else None
+        Xr = X[rows] if w is None else (X * np.asarray(w)[:, None])[rows]
+        wr = None if w is None else np.asarray(w)[rows]
+
+        def path_value(value: float) -> Stats:
+            y = self.target(spec.with_value(kind, value))[rows]
+            return Stats.of_rows(y if wr is None else y * wr, Xr, self.blocks)
+
+        return path_value
+
     def _finish(self, spec: Spec, f: Fit, owners: list[tuple[str, slice]], nl_folds: np.ndarray | None = None,
                 nl_name: str | None = None, nl_step: float = 0.0, nl_value: float = 0.0,
                 edges: tuple[float, float, float] | None = None) -> Evaluation:
@@ -259,16 +291,9 @@ class EquationModel:
         if cand.nonlinear is None:
             return self.evaluate(new)
         grid = self.grid(cand.nonlinear)
-        owners: list[tuple[str, slice]] = []
-
-        def stats_of(value: float) -> Stats:
-            st, own = self.stats(new.with_value(cand.nonlinear, value))  # type: ignore[arg-type]
-            owners[:] = own
-            return st
-
-        f, value, folds = fit_profiled(stats_of, grid)
+        f, value, folds = fit_profiled(self.profile(new, cand.nonlinear), grid)
         step = float(np.median(np.diff(grid))) if len(grid) > 1 else 0.0
-        _, owners = self.stats(new.with_value(cand.nonlinear, value))
+        _, owners = self.design(new.with_value(cand.nonlinear, value))
         edges = (float(grid[0]), float(grid[-1]), step) if len(grid) > 1 else None
         return self._finish(new.with_value(cand.nonlinear, value), f, owners, folds, name, 0.1 * step, value, edges)
 
