@@ -38,8 +38,8 @@ WRAPPING_RAIL = 1 << 20  # beyond every int16 reading
 OUT_BYTES = 4096  # device.c HIL_OUT_BYTES
 OUT_FRAMES = 128  # device.c HIL_OUT_FRAMES
 NOISE_BLOCK = 4096  # noise draws handed to device.c at a time
-_STREAMING, _ANSWERED, _NEW_SESSION, _NOISE_LOW, _FRAMES, _NO_NOISE = 1, 2, 4, 8, 16, 32  # device.c's status bits
-_SLOW = _NEW_SESSION | _NOISE_LOW | _FRAMES | _NO_NOISE
+_STREAMING, _ANSWERED, _NEW_SESSION, _NOISE_LOW, _FRAMES, _NO_NOISE, _SHAPE = 1, 2, 4, 8, 16, 32, 64  # device.c's
+_SLOW = _NEW_SESSION | _NOISE_LOW | _FRAMES | _NO_NOISE | _SHAPE
 _DP = ctypes.POINTER(ctypes.c_double)
 STATE_FIELDS = (
     "clock_ns", "period_ns", "rate_hz", "watchdog_ms", "streaming", "enabled", "answered", "any_applied",
@@ -158,18 +158,20 @@ def load_device_library() -> ctypes.CDLL:
     return lib
 
 
-@functools.cache
-def actuation_table(actuator: Actuator, full_scale: float) -> ctypes.Array[ctypes.c_double]:
-    """(τ0, d, command) for every COMMAND count −32768…32767, at 3·(count + 32768): the actuator's shaping
-    (Actuator.torque_terms) of the command the count stands for, looked up by device.c instead of repeated."""
-    table = (ctypes.c_double * (3 * 65536))()
-    terms = actuator.torque_terms
-    values: list[float] = []
-    for counts in range(-32768, 32768):
-        u = float(counts_to_actuator(counts, full_scale))
-        values.extend((*terms(u), u))
-    table[:] = values
-    return table
+class ActuationTable:
+    """(τ0, d, command) of each COMMAND count −32768…32767 at 3·(count + 32768), for device.c: the actuator's shaping
+    (Actuator.torque_terms) of the command the count stands for, filled as the core first outputs each count (NaN
+    until then) — the one definition of the shaping, looked up in C."""
+
+    def __init__(self, actuator: Actuator, full_scale: float) -> None:
+        self.actuator, self.full_scale = actuator, full_scale
+        self.values = np.full(3 * 65536, np.nan)
+        self.pointer = self.values.ctypes.data_as(_DP)
+
+    def fill(self, counts: int) -> None:
+        u = float(counts_to_actuator(counts, self.full_scale))
+        i = 3 * (counts + 32768)
+        self.values[i:i + 3] = (*self.actuator.torque_terms(u), u)
 
 
 class _Held:
@@ -266,8 +268,8 @@ class CFirmware(Firmware):
         self._state0 = (ctypes.c_double * len(sim._state))(*sim._state)  # the rig at its initial state
         self._ring0 = (ctypes.c_double * len(sim._ring))(*sim._ring)
         d.state0, d.ring0 = ctypes.cast(self._state0, _DP), ctypes.cast(self._ring0, _DP)
-        self._actuation = actuation_table(m.actuator, self.full_scale)
-        d.actuation = ctypes.cast(self._actuation, _DP)
+        self._actuation = ActuationTable(m.actuator, self.full_scale)
+        d.actuation = self._actuation.pointer
         d.theta_noise, d.theta_dot_noise, d.theta_offset = m.theta_noise, m.theta_dot_noise, m.theta_offset
         d.bessel = int(m.bessel is not None)
         d.theta_rad_per_count, d.theta_dot_rad_s_per_count = cal.theta_rad_per_count, cal.theta_dot_rad_s_per_count
@@ -314,6 +316,10 @@ class CFirmware(Firmware):
                 d.noise_len, d.noise_pos = len(self._noise), 0
             if bits & _NO_NOISE:
                 raise RuntimeError("hil_mock/csrc/device.c ran out of noise draws")
+            if bits & _SHAPE:  # counts the actuator had not output before: shape them, then the plant moves on
+                self._actuation.fill(d.output)
+                self._after(self._lib.hil_advance(self._dref))
+                return
         if not self.fused and self._d.pending:
             self.sim.set_command(self.output)
             self.sim.advance(self._d.pending)

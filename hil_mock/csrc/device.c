@@ -7,8 +7,9 @@
  *   sensor path   furuta_rt.sim.simulator.Simulator.sample, furuta_rt.model.sensors.Calibration.to_counts
  *   device time   hil_mock.firmware.Firmware.advance_plant (the plant runs in device time from the first HELLO)
  *   new session   hil_mock.firmware.Firmware._on_hello (a HELLO to an idle device puts the rig back)
- * The actuator's shaping is not repeated here: the caller tabulates Actuator.torque_terms for every COMMAND count,
- * and the noise is the simulator's own generator's draws, handed over in blocks.
+ * The actuator's shaping is not repeated here: the caller tabulates Actuator.torque_terms for each COMMAND count the
+ * core outputs (an entry still NaN: the plant waits for it, HIL_SHAPE), and the noise is the simulator's own
+ * generator's draws, handed over in blocks.
  *
  * Without a compiled plant (params NULL: a model plant.c does not cover) the caller samples and integrates its
  * plant itself: it sets the readings before hil_tick and runs `pending` substeps after it.
@@ -33,6 +34,7 @@ enum {
     HIL_NOISE_LOW = 8,   /* fewer than HIL_NOISE_MARGIN noise draws left: hand over the next block */
     HIL_FRAMES = 16,     /* frames waiting in out */
     HIL_NO_NOISE = 32,   /* a reading found no noise draw left (the caller did not refill): the reading is wrong */
+    HIL_SHAPE = 64,      /* the actuator's counts have no entry in the table yet: fill it, then hil_advance */
 };
 #define HIL_NOISE_MARGIN 64u
 
@@ -53,7 +55,7 @@ typedef struct {
     int32_t *head;
     int32_t n_delay;
     const double *state0, *ring0;
-    const double *actuation;        /* (tau0, damp, command) of COMMAND count c at 3 * (c + 32768) */
+    const double *actuation;        /* (tau0, damp, command) of COMMAND count c at 3 * (c + 32768); NaN: not yet */
     /* the sensor path */
     const double *noise, *noise0;   /* standard normal draws: the live block, and the first block of the seed */
     uint32_t noise_len, noise_pos, noise0_len;
@@ -135,24 +137,29 @@ static void sense(hil_device_t *d, int32_t out[3], uint32_t *status)
 }
 
 /* Firmware.advance_plant: the plant up to the device clock, driven by the actuator's present counts. */
-static void advance(hil_device_t *d)
+static uint32_t advance(hil_device_t *d)
 {
     const fw_t *fw = host_core(d->fw);
     if (d->plant_start_ns < 0) {
-        return;
+        return 0u;
     }
     int64_t target = (int64_t)nearbyint((double)((int64_t)fw->clock_ns - d->plant_start_ns) * d->substep_hz * 1e-9);
     int64_t n = target - d->substeps_done;
     if (n <= 0) {
-        return;
+        return 0u;
     }
-    d->substeps_done = target;
     if (d->params == NULL) {
+        d->substeps_done = target;
         d->pending += n;
-        return;
+        return 0u;
     }
     const double *a = d->actuation + 3 * ((int32_t)fw->output + 32768);
+    if (isnan(a[0])) {
+        return HIL_SHAPE;
+    }
+    d->substeps_done = target;
     plant_advance(d->params, d->state, d->ring, d->n_delay, d->head, a[0], a[1], a[2], (long)n);
+    return 0u;
 }
 
 /* After every call: a new session (Firmware._on_hello), frames out, the status bits. */
@@ -221,23 +228,18 @@ uint32_t hil_tick(hil_device_t *d, int advance_plant)
     }
     host_tick(d->fw, (int16_t)r[0], (int16_t)r[1], r[2], 0u);
     if (advance_plant) {
-        advance(d);
+        status |= advance(d);
     }
     return finish(d, status);
 }
 
-uint32_t hil_advance(hil_device_t *d)
-{
-    advance(d);
-    return finish(d, 0u);
-}
+uint32_t hil_advance(hil_device_t *d) { return finish(d, advance(d)); }
 
 /* The timer fired `periods` times without the tick running: the core's clock moves on, the plant with it. */
 uint32_t hil_skip(hil_device_t *d, uint32_t periods)
 {
     host_skip(d->fw, periods);
-    advance(d);
-    return finish(d, 0u);
+    return finish(d, advance(d));
 }
 
 /* After a call made on the core directly (host_hangup, host_reboot, ...). */
