@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 from test_reliability_harness import (
     HIL_RATE,
+    TEST_SAFETY,
     MockProcess,
     MockRecord,
     read_summary,
@@ -128,11 +129,14 @@ def test_device_reset_trips_and_a_new_run_handshakes_again(tmp_path: Path) -> No
     rehello = next(t for t in hellos if t > t_reset)
     between = [o for o in rec.outputs if t_reset < o[0] < rehello]
     assert all(u == 0.0 for _, _, u in between), "the actuator stayed at zero from the reset to the next handshake"
-    # disconnect: trip within two periods of the pty closing (host clock; + 20 ms for scheduling)
+    # disconnect: the trip follows the pty closing, from the closed port itself (its message is not the SAMPLE
+    # timeout's, above) and so before that timeout could have run out; on an idle machine within two periods, on a
+    # loaded one when the host is next scheduled (the loaded box stalls processes for hundreds of ms now and then)
     t_disc = next(t for t, _, what in rec.events if what == "hangup" and t > rehello)
     (trip,) = _trip_events(log2)
     delay_s = (trip["log_time"] - t_disc) * 1e-9
-    assert -0.005 < delay_s < 2 / HIL_RATE + 0.02, f"tripped {delay_s * 1e3:.1f} ms after the disconnect"
+    link_timeout_s = TEST_SAFETY["link_loss_periods"] / HIL_RATE
+    assert -0.005 < delay_s < link_timeout_s, f"tripped {delay_s * 1e3:.1f} ms after the disconnect"
     assert rec.final_output == 0.0
 
 
