@@ -286,12 +286,12 @@ def _stop_mock(proc: Any) -> str:
 
 
 def _limits(opts: RunOptions, rate: int) -> Any:
-    from furuta_rt.experiment.hanging import SWING_LIMIT
     from furuta_rt.runtime.supervisor import SupervisorLimits
 
-    hanging = opts.experiment is not None and opts.experiment.mode == "hanging"
-    limits = SupervisorLimits.from_config(opts.rig.safety, rate, opts.rig.swing_up,
-                                          hanging_swing=SWING_LIMIT if hanging else None)
+    swing = None
+    if opts.experiment is not None and opts.experiment.mode == "hanging":  # the experiments' modules only then
+        from furuta_rt.experiment.hanging import SWING_LIMIT as swing
+    limits = SupervisorLimits.from_config(opts.rig.safety, rate, opts.rig.swing_up, hanging_swing=swing)
     if opts.max_overruns is not None:
         limits = dataclasses.replace(limits, max_consecutive_overruns=opts.max_overruns)
     return limits
