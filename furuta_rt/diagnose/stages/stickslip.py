@@ -97,13 +97,17 @@ def simulate_arm(model: RigModel, prep: Prepared, fine: States, w: Window, subst
     k = w.start
     sim = start_simulator(model, prep, fine, k, 1.0 / prep.dt, substep_hz, phi_dot=w.phi_dot)
     D, _ = model.command_timing(round(prep.command_lag / prep.dt))  # the driver's ticks; the line the rest
-    out = np.empty(w.horizon)
-    for j in range(w.horizon):
-        sim.set_command(float(prep.u[max(k + j - D, 0)]))
+    h = w.horizon
+    ahead = slice(k + 1, k + 1 + h)  # the pendulum forced along the window's ticks, the commands D ticks behind
+    forced = zip(prep.u[np.maximum(np.arange(k - D, k - D + h), 0)].tolist(),
+                 (fine.theta[ahead] - model.theta_offset).tolist(), fine.theta_dot[ahead].tolist(), strict=True)
+    out = np.empty(h)
+    for j, (u, theta, theta_dot) in enumerate(forced):
+        sim.set_command(u)
         sim.advance(1)
         out[j] = sim.phi
-        sim.theta = float(fine.theta[k + j + 1] - model.theta_offset)
-        sim.theta_dot = float(fine.theta_dot[k + j + 1])
+        sim.theta = theta
+        sim.theta_dot = theta_dot
     return out
 
 
