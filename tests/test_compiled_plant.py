@@ -165,9 +165,10 @@ def test_c_device_tick_agrees_with_the_python_device_tick_for_tick(case: str) ->
     """The device tick in C (hil_mock/csrc/device.c: sensor path, firmware core, frames out, plant substeps in one call)
     against the reference device (Python firmware, Python simulator, Calibration.to_counts): every frame identical and
     the plant states within the bound at every tick, across the noise blocks' hand-overs (2 draws a tick, 4096 a
-    block), a STOP and a new session (the rig put back, the noise restarted from its seed), an overrun's skipped
-    periods and a COMMAND at negative full scale. Cases: the thesis rig (θ wraps, Bessel path, θ and θ̇ noise,
-    transport delay, stick–slip), LuGre with saturation, a DC motor rig (saturating ADC, no Bessel path, θ̇ noise)."""
+    block: one before and one after the restart), a STOP and a new session (the rig put back, the noise restarted
+    from its seed), an overrun's skipped periods and a COMMAND at negative full scale. Cases: the thesis rig (θ
+    wraps, Bessel path, θ and θ̇ noise, transport delay, stick–slip), LuGre with saturation, a DC motor rig (saturating
+    ADC, no Bessel path, θ̇ noise)."""
     from firmware_protocol import (
         CommandFlags,
         HelloAck,
@@ -198,12 +199,12 @@ def test_c_device_tick_agrees_with_the_python_device_tick_for_tick(case: str) ->
     session, samples, stuck_or_slow = 0, 0, 0
     for fw in devices:
         fw.receive(encode(hellos[0]))
-    for k in range(3000):
+    for k in range(4600):
         if k == 2300:  # the host stops, then a new session on the idle device: the rig put back at its start
             session = 1
             for fw in devices:
                 fw.receive(encode(Stop(0)) + encode(hellos[1]))
-        if k == 2600:
+        if k == 3500:
             for fw in devices:
                 fw.skip(3)
         for fw in devices:
@@ -221,10 +222,10 @@ def test_c_device_tick_agrees_with_the_python_device_tick_for_tick(case: str) ->
         stuck_or_slow += fast.sim.phi_dot == 0.0 or abs(fast.sim.phi_dot) < 0.05
         for fw in devices:
             fw.tx.clear()
-    assert samples == 3000
+    assert samples == 4600
     assert fast.replacements == ref.replacements == 1
-    assert fast.commands_applied == ref.commands_applied > 2900
-    assert 0 < stuck_or_slow < 3000  # the arm moved and came to (near) rest: the friction branches both ran
+    assert fast.commands_applied == ref.commands_applied > 4500
+    assert 0 < stuck_or_slow < 4600  # the arm moved and came to (near) rest: the friction branches both ran
 
 
 def test_one_reading_quantises_as_an_array_does() -> None:
