@@ -51,22 +51,42 @@ class Stats:
     def of_rows(cls, yr: np.ndarray, Xr: np.ndarray, blocks: Blocks) -> Stats:
         """``of`` from the rows already taken (``y[blocks.rows]``, ``X[blocks.rows]``: elementwise work on the rows
         alone gives the same numbers as on the whole recording, so a profile can take them once)."""
+        return Design.of_rows(Xr, blocks).stats(yr, blocks)
+
+
+@dataclass(frozen=True)
+class Design:
+    """The columns' side of Stats (scales, scaled rows, per-block G_b): one design serves every target fitted on it (a
+    profile over a parameter of the target alone)."""
+
+    Xs: np.ndarray  # (rows, k) the rows' columns over their scales
+    G: np.ndarray  # (B, k, k)
+    scale: np.ndarray  # (k,)
+
+    @classmethod
+    def of_rows(cls, Xr: np.ndarray, blocks: Blocks) -> Design:
         k = Xr.shape[1]
         scale = np.sqrt(_column_sums(Xr**2) / len(Xr)) if k else np.zeros(0)
         scale[scale == 0] = 1.0
         Xs = Xr / scale
-        B = blocks.count
-        G = np.empty((B, k, k))
+        G = np.empty((blocks.count, k, k))
+        for b, (a, e) in enumerate(blocks.bounds):
+            xb = Xs[a:e]
+            G[b] = xb.T @ xb
+        return cls(Xs, G, scale)
+
+    def stats(self, yr: np.ndarray, blocks: Blocks) -> Stats:
+        """Stats of the target ``yr`` (the rows of ``blocks``) on these columns."""
+        B, k = blocks.count, self.Xs.shape[1]
         h = np.empty((B, k))
         s = np.empty(B)
         n = np.empty(B)
         for b, (a, e) in enumerate(blocks.bounds):
-            xb, yb = Xs[a:e], yr[a:e]
-            G[b] = xb.T @ xb
+            xb, yb = self.Xs[a:e], yr[a:e]
             h[b] = xb.T @ yb
             s[b] = yb @ yb
             n[b] = e - a
-        return cls(G, h, s, n, scale)
+        return Stats(self.G, h, s, n, self.scale)
 
 
 def _column_sums(a: np.ndarray) -> np.ndarray:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from furuta_rt.diagnose.regression.fitting import Blocks, Fit, Stats, fit, fit_profiled, paired_t
+from furuta_rt.diagnose.regression.fitting import Blocks, Design, Fit, Stats, fit, fit_profiled, paired_t
 from furuta_rt.diagnose.regression.library import ARM, CANDIDATES, Candidate, Context, InputPath, kink_supported
 
 
@@ -144,9 +144,9 @@ class EquationModel:
 
     def profile(self, spec: Spec, kind: str) -> Callable[[float], Stats]:
         """value → ``stats(spec.with_value(kind, value))[0]``, with what does not change along the profile taken once, on
-        the equation's rows only: the design when no column moves with the command path or the Stribeck speed, and
-        the arm's residual, ∂ID/∂J and M22 for an inertia (ID is linear in J). The same arithmetic, element by element,
-        as ``stats``: the same numbers."""
+        the equation's rows only: the design (its scales and blocks' Gram matrices) when no column moves with the command
+        path or the Stribeck speed, and the arm's residual, ∂ID/∂J and M22 for an inertia (ID is linear in J). The same
+        arithmetic, element by element, as ``stats``: the same numbers."""
         rows = self.blocks.rows
         if kind == "inertia" and self.equation == ARM:
             X, _ = self.design(spec)  # the columns do not depend on ΔJ; the residual is linear in it (arm_residual)
@@ -164,12 +164,12 @@ class EquationModel:
             return lambda value: self.stats(spec.with_value(kind, value))[0]
         X, _ = self.design(spec)  # the same columns at every value of the command path's parameter
         w = self.ctx.arm_weight(spec.d_inertia) if self.equation == ARM and spec.d_inertia else None
-        Xr = X[rows] if w is None else (X * np.asarray(w)[:, None])[rows]
+        design = Design.of_rows(X[rows] if w is None else (X * np.asarray(w)[:, None])[rows], self.blocks)
         wr = None if w is None else np.asarray(w)[rows]
 
         def path_value(value: float) -> Stats:
             y = self.target(spec.with_value(kind, value))[rows]
-            return Stats.of_rows(y if wr is None else y * wr, Xr, self.blocks)
+            return design.stats(y if wr is None else y * wr, self.blocks)
 
         return path_value
 
