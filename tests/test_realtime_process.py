@@ -90,6 +90,17 @@ def test_a_kept_design_is_the_helpers_bit_for_bit_and_starts_no_helper(tmp_path:
     off = DesignProcess(rig, None)
     assert not off.kept
     off.close()
+    # a source this process may not read (a clone in another user's private folder): no key, the helper makes it
+    from furuta_rt.runtime import design_process
+
+    def unreadable(*_: object) -> str:
+        raise PermissionError(13, "Permission denied", str(design_process.PACKAGE_DIR))
+
+    monkeypatch.delenv("FURUTA_RT_DESIGN_CACHE")
+    monkeypatch.setattr(design_process, "design_key", unreadable)
+    blind = DesignProcess(rig, None)
+    assert not blind.kept
+    blind.close()
 
 
 def test_the_design_key_follows_the_rig_the_gains_and_the_source(tmp_path: Path, monkeypatch) -> None:

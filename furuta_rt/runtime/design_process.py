@@ -120,7 +120,10 @@ class DesignProcess:
     """The helper, running; ``result()`` waits for its ControllerDesign (or the kept one: no helper)."""
 
     def __init__(self, rig: RigConfig, gains: list[float] | None) -> None:
-        self._path = _cache_path(design_key(rig, gains))
+        try:
+            self._path = _cache_path(design_key(rig, gains))
+        except OSError:  # a source file or folder this process may not read: no key, the helper makes it
+            self._path = None
         self._kept = None if self._path is None else _load(self._path)
         self._proc: Any = None
         if self.kept:
