@@ -46,6 +46,7 @@ class IdealLoop:
         model = replace(RigModel.from_config(rig, effects), bessel=None, theta_noise=0.0, theta_dot_noise=0.0)
         self.sim = fast_simulator(model, rate_hz, rate_hz)
         self.gains = np.asarray(gains, dtype=float)
+        self._l = tuple(float(g) for g in self.gains)  # as floats: the same products, no numpy scalar per step
         # φ is cyclic (the dynamics do not depend on it) without φ feedback or cable spring: an orbit
         # may then drift in φ, and φ is left out of the periodicity condition.
         self.cyclic: tuple[int, ...] = (2,) if self.gains[2] == 0.0 and model.spring_k == 0.0 else ()
@@ -66,7 +67,7 @@ class IdealLoop:
 
     def step(self) -> None:
         s = self.sim
-        l1, l2, l3, l4 = self.gains
+        l1, l2, l3, l4 = self._l
         self.u = l1 * s.theta + l2 * s.theta_dot + l3 * s.phi + l4 * s.phi_dot
         s.set_command(self.u)
         s.advance(1)
@@ -154,17 +155,18 @@ class Trajectory:
 
 def record_trajectory(loop: Loop, steps: int) -> Trajectory:
     t = np.arange(steps + 1) * loop.dt
-    x = np.empty((steps + 1, 4))
-    u = np.empty(steps + 1)
-    stuck = np.empty(steps + 1, dtype=bool)
+    x: list[tuple[float, float, float, float]] = []  # lists, made arrays once at the end
+    u: list[float] = []
+    stuck: list[bool] = []
+    s = loop.sim
     for k in range(steps + 1):
-        s = loop.sim
-        x[k] = s.theta, s.theta_dot, s.phi, s.phi_dot
-        stuck[k] = s.stuck
+        x.append((s.theta, s.theta_dot, s.phi, s.phi_dot))
+        stuck.append(s.stuck)
         if k < steps:
             loop.step()
-        u[k] = loop.u
-    return Trajectory(t, x, u, stuck)
+        u.append(loop.u)
+    return Trajectory(t, np.array(x, dtype=float).reshape(steps + 1, 4), np.array(u, dtype=float),
+                      np.array(stuck, dtype=bool))
 
 
 def _to_section(loop: Loop, count: int, max_time: float, fall: float) -> tuple[np.ndarray, float]:
