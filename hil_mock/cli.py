@@ -27,8 +27,7 @@ from furuta_rt.io.output import claim_outputs, write_text
 from furuta_rt.tomlfile import read_toml
 from hil_mock.config import MockConfig, build_config
 from hil_mock.device import VirtualDevice
-
-SERVING_PREFIX = "hil-mock: serving on "
+from hil_mock.launch import SERVING_PREFIX
 
 
 def build_parser() -> argparse.ArgumentParser:

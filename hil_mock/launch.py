@@ -21,7 +21,8 @@ import sys
 import time
 from collections.abc import Sequence
 
-from hil_mock.cli import SERVING_PREFIX
+SERVING_PREFIX = "hil-mock: serving on "
+"""The line ``hil-mock`` prints once it serves, followed by its pty path (read here, printed by the CLI)."""
 
 _LIFELINES: dict[int, int] = {}
 """pid of each mock started here → the write end of its lifeline pipe."""

@@ -9,6 +9,8 @@ every SAMPLE with CLEAR_FAULT added whenever a fault is latched, so a host stall
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import time
 from itertools import pairwise
 from pathlib import Path
@@ -242,3 +244,24 @@ def test_disconnect_closes_the_device():
         while dev.running and time.monotonic() < deadline:
             time.sleep(0.01)
         assert not dev.running and dev.disconnected
+
+
+def test_launching_the_mock_loads_only_the_launcher_and_the_public_names_still_resolve() -> None:
+    """The daemon's control process imports hil_mock only to start the mock as a child: that import must not
+    pull the simulator (and its numpy/scipy) into a memory-locked real-time process."""
+    probe = (
+        "import sys\n"
+        "from hil_mock import start_mock_subprocess, stop_mock_subprocess, MockStartError\n"
+        "heavy = sorted(m for m in sys.modules if m.startswith(('hil_mock.', 'furuta_rt', 'numpy', 'scipy'))"
+        " and m != 'hil_mock.launch')\n"
+        "print(heavy)\n"
+        "import hil_mock, hil_mock.device, hil_mock.config\n"
+        "assert hil_mock.VirtualDevice is hil_mock.device.VirtualDevice\n"
+        "assert hil_mock.build_config is hil_mock.config.build_config\n"
+        "try:\n"
+        "    hil_mock.no_such_name\n"
+        "except AttributeError as err:\n"
+        "    print(err)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.splitlines() == ["[]", "module 'hil_mock' has no attribute 'no_such_name'"]
