@@ -28,6 +28,8 @@ from furuta_rt.io.mcap_log import write_recording_mcap
 from furuta_rt.io.mcap_read import read_log
 from furuta_rt.recording import Recording
 
+LOCKSTEP = "--mock-arg=--pacing=lockstep"  # runs asserting files, not timing: the device's time decides the ticks
+
 
 def _cli(cwd: Path, *args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     return subprocess.run([*FURUTA_RT, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout)
@@ -115,7 +117,7 @@ def test_run_log_force_replaces_the_recording_only_once_the_device_answers(tmp_p
     assert old.read_bytes() == before and summary.read_text() == '{"an earlier summary": true}\n'
     # a run that balances replaces both
     proc = _cli(tmp_path, "run", "--mock", "--duration", "1", "--no-rt", "--no-tui", "--log", "old.mcap",
-                "--summary-json", "old.json", "--force")
+                "--summary-json", "old.json", "--force", LOCKSTEP)
     assert proc.returncode == 0, proc.stderr
     new = read_log(old)
     assert not new.converted and new.n_ticks >= 400
@@ -145,7 +147,7 @@ def test_convert_refuses_an_existing_output_and_replaces_it_with_force(tmp_path:
 def test_a_run_that_never_balanced_exits_non_zero(tmp_path: Path) -> None:
     """The mock starts at θ = 0.4 rad, outside the 0.1 rad arming window: the pendulum falls, never arms."""
     proc = _cli(tmp_path, "run", "--mock", "--mock-initial-theta", "0.4", "--duration", "1", "--no-rt", "--no-tui",
-                "--summary-json", "s.json")
+                "--summary-json", "s.json", LOCKSTEP)
     s = json.loads((tmp_path / "s.json").read_text())
     assert s["end"] == "duration" and s["balancing_ticks"] == 0 and s["ticks"] >= 400
     assert proc.returncode == 4, proc.stderr

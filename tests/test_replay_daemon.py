@@ -20,7 +20,8 @@ def test_replay_of_a_daemon_mock_run_is_exact(tmp_path: Path) -> None:
     log_path = tmp_path / "run.mcap"
     run = subprocess.run(
         [*FURUTA_RT, "run", "--mock", "--duration", "2", "--log", str(log_path), "--no-tui", "--comp", "lugre",
-         "--config", str(write_test_rig(tmp_path)), "--mock-effect", "arm_coulomb.Fc=0.2", "--mock-seed", "5"],
+         "--config", str(write_test_rig(tmp_path)), "--mock-effect", "arm_coulomb.Fc=0.2", "--mock-seed", "5",
+         "--mock-arg=--pacing=lockstep"],  # the device's time decides the tick count, not the machine's load
         capture_output=True, text=True, cwd=ROOT, timeout=240,
     )
     assert run.returncode == 0 and traceback_free(run.stderr), run.stderr
