@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
-from test_reliability_harness import DaemonProcess, read_summary, traceback_free
+from test_reliability_harness import LOCKSTEP, DaemonProcess, read_summary, traceback_free
 
 from firmware_protocol import (
     PROTOCOL_VERSION,
@@ -130,7 +130,7 @@ def test_the_daemon_balances_through_the_flashed_image(image: Path, tmp_path: Pa
     model runs slower than real time; a longer run balances the same way and checks nothing more)."""
     log = tmp_path / "run.mcap"
     d = DaemonProcess(["--mock", "--mock-firmware", "board", "--config", "macstepien", "--duration", "4", "--no-tui",
-                       "--mock-arg=--pacing=lockstep", "--log", str(log), "--summary-json", str(tmp_path / "summary.json")])
+                       LOCKSTEP, "--log", str(log), "--summary-json", str(tmp_path / "summary.json")])
     rc = d.wait(timeout=280)
     assert traceback_free(d.stderr + d.stdout), d.stderr
     assert rc == 0, f"exit {rc}\n{d.stderr}\n{d.stdout}"
@@ -301,7 +301,7 @@ def test_a_watchdog_the_board_refuses_is_one_line_from_the_daemon(image: Path, t
     """`furuta-rt run --watchdog-ms 1000` against the board image: its CONFIG is refused (500 ms at most), and the
     daemon says so in one line naming both values and the options, without a traceback."""
     d = DaemonProcess(["--mock", "--mock-firmware", "board", "--config", "macstepien", "--duration", "1", "--no-tui",
-                       "--watchdog-ms", "1000", "--mock-arg=--pacing=lockstep", "--log", str(tmp_path / "run.mcap")])
+                       "--watchdog-ms", "1000", LOCKSTEP, "--log", str(tmp_path / "run.mcap")])
     rc = d.wait(timeout=120)
     out = d.stderr + d.stdout
     assert rc not in (0, None) and traceback_free(out), out

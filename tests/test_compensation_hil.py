@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from test_compensation import settled_after
-from test_reliability_harness import FURUTA_RT, ROOT, independent_mcap_counts, read_summary, traceback_free
+from test_reliability_harness import FURUTA_RT, LOCKSTEP, ROOT, independent_mcap_counts, read_summary, traceback_free
 from test_run_hil import mock_run, steady
 
 from furuta_rt.config import load_rig
@@ -38,7 +38,7 @@ from furuta_rt.replay.core import replay_log
 pytestmark = pytest.mark.hil
 RATE = 500
 FC = 0.35
-HIDDEN = ["--mock-effect", f"arm_coulomb.Fc={FC}", "--mock-arg=--pacing=lockstep"]
+HIDDEN = ["--mock-effect", f"arm_coulomb.Fc={FC}", LOCKSTEP]
 SETTLE_S = 4.0  # statistics from this long after balancing began (the adaptive estimate is within 10 % by then)
 
 

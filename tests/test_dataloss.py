@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import test_reliability_harness as harness
-from test_reliability_harness import FURUTA_RT, ROOT, UNPRIVILEGED
+from test_reliability_harness import FURUTA_RT, LOCKSTEP, ROOT, UNPRIVILEGED
 
 from furuta_rt import cli
 from furuta_rt.config import SHIPPED_RIGS, implausible, load_rig
@@ -27,8 +27,6 @@ from furuta_rt.io.csv import write_csv
 from furuta_rt.io.mcap_log import write_recording_mcap
 from furuta_rt.io.mcap_read import read_log
 from furuta_rt.recording import Recording
-
-LOCKSTEP = "--mock-arg=--pacing=lockstep"  # runs asserting files, not timing: the device's time decides the ticks
 
 
 def _cli(cwd: Path, *args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from test_reliability_harness import (
+    LOCKSTEP,
     DaemonProcess,
     MockProcess,
     MockRecord,
@@ -194,7 +195,7 @@ def test_run_experiment_on_the_mock_logs_its_segments(tmp_path: Path) -> None:
     one event per segment at the ticks the plan puts them, the plan as metadata; the log replays bit for bit."""
     plan_path = write_plan(tmp_path)
     d = DaemonProcess(["--mock", "--experiment", str(plan_path), "--no-tui", "--log", str(tmp_path / "run.mcap"),
-                       "--summary-json", str(tmp_path / "summary.json"), "--mock-arg=--pacing=lockstep"])
+                       "--summary-json", str(tmp_path / "summary.json"), LOCKSTEP])
     rc = d.wait(timeout=120)
     assert rc == 0 and traceback_free(d.stderr), d.stderr
     s = read_summary(tmp_path)

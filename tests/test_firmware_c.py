@@ -27,7 +27,7 @@ from pathlib import Path
 
 import pytest
 from test_hil_mock import done_when
-from test_reliability_harness import DaemonProcess, read_summary, traceback_free
+from test_reliability_harness import LOCKSTEP, DaemonProcess, read_summary, traceback_free
 
 import furuta_rt
 from firmware_protocol import (
@@ -332,7 +332,7 @@ def test_c_device_over_a_pty_passes_the_acceptance_run() -> None:
 def test_furuta_rt_run_balances_with_the_c_device(tmp_path: Path) -> None:
     """`furuta-rt run --mock --mock-firmware c` (the README's main job with the C device), 3 s, the mock in lockstep
     (in real time a host stall of a few hundred ms on a loaded machine can trip the run: not the device's doing)."""
-    d = DaemonProcess(["--mock", "--mock-firmware", "c", "--duration", "3", "--no-tui", "--mock-arg=--pacing=lockstep",
+    d = DaemonProcess(["--mock", "--mock-firmware", "c", "--duration", "3", "--no-tui", LOCKSTEP,
                        "--summary-json", str(tmp_path / "summary.json")])
     rc = d.wait(timeout=120)
     assert traceback_free(d.stderr + d.stdout), d.stderr

@@ -358,6 +358,9 @@ _INLINE_CLI = "import sys; from furuta_rt.cli import main; sys.exit(main())"
 FURUTA_RT = [str(_SCRIPT)] if _SCRIPT.exists() else [sys.executable, "-c", _INLINE_CLI]
 """How a user starts the CLI (the console script of this venv)."""
 HIL_RATE = 500
+LOCKSTEP = "--mock-arg=--pacing=lockstep"
+"""`furuta-rt run --mock` with the device paced by the host's COMMANDs: the device's time, not the machine's load,
+decides the ticks (for runs that assert behaviour, not real-time timing)."""
 SAMPLE_WIRE_LEN = 23  # COBS(SAMPLE inner, 21 bytes) + delimiter
 TEST_SAFETY = {"link_loss_periods": 250, "max_consecutive_overruns": 250}
 """Rig overrides of the HIL tests (0.5 s at 500 Hz). A shared 2-core box now and then delays pty traffic by

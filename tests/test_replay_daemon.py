@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_reliability_harness import FURUTA_RT, ROOT, traceback_free, write_test_rig
+from test_reliability_harness import FURUTA_RT, LOCKSTEP, ROOT, traceback_free, write_test_rig
 
 from furuta_rt.io.mcap_read import read_log
 from furuta_rt.replay import replay_log
@@ -21,7 +21,7 @@ def test_replay_of_a_daemon_mock_run_is_exact(tmp_path: Path) -> None:
     run = subprocess.run(
         [*FURUTA_RT, "run", "--mock", "--duration", "2", "--log", str(log_path), "--no-tui", "--comp", "lugre",
          "--config", str(write_test_rig(tmp_path)), "--mock-effect", "arm_coulomb.Fc=0.2", "--mock-seed", "5",
-         "--mock-arg=--pacing=lockstep"],  # the device's time decides the tick count, not the machine's load
+         LOCKSTEP],  # the device's time decides the tick count, not the machine's load
         capture_output=True, text=True, cwd=ROOT, timeout=240,
     )
     assert run.returncode == 0 and traceback_free(run.stderr), run.stderr

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from test_reliability_harness import (
+    LOCKSTEP,
     DaemonProcess,
     MockProcess,
     MockRecord,
@@ -77,7 +78,6 @@ def assert_ends_safe(rec: MockRecord) -> None:
 # The README's job (`run --mock --duration 10`, the config's mode "none") runs its 10 s; the other modes 4 s each:
 # 3 s of balancing after the first second is plenty for the same checks.
 MODE_SECONDS = {"none": 10, "coulomb": 4, "stiction": 4, "lugre": 4}
-LOCKSTEP = "--mock-arg=--pacing=lockstep"
 
 
 def test_main_job_balances_in_every_compensation_mode(tmp_path: Path) -> None:
@@ -145,7 +145,7 @@ def test_arm_friction_limit_cycle_and_matched_coulomb_compensation(tmp_path: Pat
     compensation matched to Fc cuts std θ and std φ by at least 5×."""
     rig, rig_path = friction_rig(tmp_path)
     seconds = 15.0
-    common = ["--config", str(rig_path), "--mock-effect", FRICTION, "--mock-arg=--pacing=lockstep"]
+    common = ["--config", str(rig_path), "--mock-effect", FRICTION, LOCKSTEP]
     runs = {m: mock_run(tmp_path, m, seconds, "--comp", m, *common) for m in ("none", "coulomb")}  # concurrently
     stats = {}
     for mode, d in runs.items():

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_reliability_harness import DaemonProcess, read_summary, traceback_free
+from test_reliability_harness import LOCKSTEP, DaemonProcess, read_summary, traceback_free
 
 from firmware_protocol import StatusFlags
 from furuta_rt.config import load_rig
@@ -65,7 +65,7 @@ def test_swing_up_from_hanging_catches_and_balances(name: str, tmp_path: Path) -
     # lockstep: every bound here is in device time, so the device need not wait for the wall clock
     args = ["--mock", "--swing-up", "--config", name, "--duration", f"{duration:.2f}", "--no-tui",
             "--log", str(tmp_path / "run.mcap"), "--summary-json", str(tmp_path / "summary.json"),
-            "--mock-arg=--pacing=lockstep"]
+            LOCKSTEP]
     for e in effects:
         args += ["--mock-effect", e]
     if push_at is not None:
