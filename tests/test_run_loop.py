@@ -26,6 +26,7 @@ from furuta_rt.errors import UserError
 from furuta_rt.model.rig import RigModel
 from furuta_rt.runtime.hardware import DeviceInfo, HardwareInterface, SerialHardware, check_usb_latency
 from furuta_rt.runtime.loop import TICK_RECORD, ControlLoop, LoopResult, LoopSettings
+from furuta_rt.runtime.summary import format_summary, summary_dict
 from furuta_rt.runtime.supervisor import STATE_NAMES, Supervisor, SupervisorLimits
 from furuta_rt.runtime.timing import DeviceClock, Histogram, RunningStats
 from furuta_rt.sim.simulator import Simulator
@@ -42,10 +43,13 @@ class SimDevice(HardwareInterface):
     COMMANDs are accepted by PROTOCOL.md §6 through firmware_protocol.command_accepted (the rule
     hil_mock's firmware uses); STOP zeroes the output at once. ``stop()`` sends what
     SerialHardware.stop sends (``zero_answer``, then STOP). ``bursts[seq] = n`` delivers n samples at
-    once (a host stall); ``silent_after`` ends the stream."""
+    once (a host stall); ``silent_after`` ends the stream; ``device_skips[seq] = k``: the device's tick of SAMPLE
+    seq is k periods late (hil_mock's and an MCU timer's overrun: the plant runs k periods with the output held,
+    the clock skips them, seq does not, TICK_OVERRUN is set); SAMPLEs in ``lost`` are sent but never arrive."""
 
     def __init__(self, rig: RigConfig, *, x0: tuple[float, ...] = (0.05, 0.0, 0.0, 0.0), bursts: dict[int, int] | None = None,
-                 silent_after: int | None = None, status: dict[int, int] | None = None, on_read: Any = None) -> None:
+                 silent_after: int | None = None, status: dict[int, int] | None = None, on_read: Any = None,
+                 device_skips: dict[int, int] | None = None, lost: set[int] | None = None) -> None:
         self.sim = Simulator(RigModel.from_config(rig), rig.control.rate_hz, seed=1, x0=x0)  # type: ignore[arg-type]
         self.full_scale = rig.actuator.limit
         self.period_us = round(1e6 / rig.control.rate_hz)
@@ -53,7 +57,10 @@ class SimDevice(HardwareInterface):
         self.silent_after = silent_after
         self.status = status or {}
         self.on_read = on_read
+        self.device_skips = device_skips or {}
+        self.lost = lost or set()
         self.seq = 0
+        self.skipped = 0  # timer periods the device skipped so far
         self.cmd: tuple[int, int, int] | None = None  # newest accepted COMMAND
         self.stopped = False
         self.written: int | None = None  # host side: seq of the last COMMAND written
@@ -74,10 +81,18 @@ class SimDevice(HardwareInterface):
 
     def _tick(self) -> Sample:
         u = self.next_output
+        status = self.status.get(self.seq, 0)
+        late = self.device_skips.get(self.seq, 0)
+        if late:
+            self.sim.set_command(u)
+            for _ in range(late):
+                self.sim.advance()
+            self.skipped += late
+            status |= int(StatusFlags.TICK_OVERRUN)
         self.outputs.append((self.seq, u))
         raw = self.sim.sample()
-        s = Sample(self.seq, (self.seq * self.period_us) & 0xFFFFFFFF, raw.theta_adc, raw.theta_dot_adc, raw.phi_count,
-                   self.status.get(self.seq, 0))
+        s = Sample(self.seq, ((self.seq + self.skipped) * self.period_us) & 0xFFFFFFFF, raw.theta_adc, raw.theta_dot_adc,
+                   raw.phi_count, status)
         self.sim.set_command(u)
         self.sim.advance()
         self.seq += 1
@@ -90,7 +105,10 @@ class SimDevice(HardwareInterface):
             if self.stopped or (self.silent_after is not None and self.seq >= self.silent_after):
                 return None
             for _ in range(self.bursts.get(self.seq, 1)):
-                self.queue.append(self._tick())
+                s = self._tick()
+                while s.seq in self.lost:  # sent, never arrived
+                    s = self._tick()
+                self.queue.append(s)
             self.arrival_ns = time.perf_counter_ns()
         return self.queue.popleft()
 
@@ -326,6 +344,28 @@ def test_sigint_stops_with_zero_and_restores_the_handler(rig: RigConfig) -> None
         assert signal.getsignal(signal.SIGINT) is before
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def test_ticks_missing_from_a_run_are_the_devices_skipped_periods_and_lost_samples(rig: RigConfig) -> None:
+    """--duration is device time, so a run logs fewer ticks than duration × rate by the periods that had no SAMPLE at
+    the host: SAMPLEs lost on the link (seq gaps) and periods the device itself skipped when its tick overran (its
+    clock moves on, seq does not). A host stall skips periods too, but its stale SAMPLEs are ticks, logged: they are
+    no part of the missing ones, and a device that overruns while the host keeps up leaves ticks missing with no
+    host overrun at all."""
+    dev = SimDevice(rig, bursts={200: 3}, device_skips={300: 3, 600: 1}, lost={450, 451})
+    loop, sink = make_loop(rig, dev, duration=2.0)
+    r = loop.run()
+    assert r.end == "duration" and len(sink.ticks()) == r.ticks
+    missing = 2 * RATE - r.ticks
+    assert (r.overruns, r.skipped_periods) == (1, 2)  # the burst: two stale SAMPLEs, logged, then one overrun
+    assert (r.device_overruns, r.device_skipped_periods, r.seq_gaps) == (2, 4, 2)
+    assert missing == r.device_skipped_periods + r.seq_gaps == 6 > r.overruns + r.skipped_periods
+    # every period the run spans is a logged tick, a lost SAMPLE or a period the device skipped (a device skipping past
+    # the run's end spans more: then fewer ticks are missing than it skipped)
+    assert r.ticks + r.seq_gaps + r.device_skipped_periods == round(r.device_span_s * RATE) + 1 == 2 * RATE
+    s = summary_dict(r, rate_hz=RATE, mode="none", rig=rig.name, log_path=None, warnings=[])
+    assert (s["device_skipped_periods"], s["device_overruns"]) == (4, 2)
+    assert "own overruns 2 (4 periods skipped)" in format_summary(r, rate_hz=RATE, mode="none", rig=rig.name, log_path=None)
 
 
 def test_stale_samples_skip_whole_periods_without_commands(rig: RigConfig) -> None:

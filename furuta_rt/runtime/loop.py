@@ -93,6 +93,7 @@ class LoopResult:
     skipped_periods: int = 0  # stale samples that got no command
     late_commands: int = 0  # device COMMAND_LATE flags while balancing
     device_overruns: int = 0  # samples flagged TICK_OVERRUN: the device itself was late
+    device_skipped_periods: int = 0  # periods the device's clock passed without a SAMPLE or a seq gap (its overruns)
     seq_gaps: int = 0
     crc_errors: int = 0
     device_link: dict[str, int] = field(default_factory=dict)  # the device's own link counters (its last STATUS)
@@ -315,6 +316,7 @@ class ControlLoop:
         comp = ctrl.compensator
         cal, tdo = self.cal, self.tdo
         nominal_us = 1e6 / st.rate_hz
+        skip_us = 1.5 * nominal_us  # a SAMPLE this long after the previous one: periods without a SAMPLE before it
         stale_age_ns = round(st.stale_age_periods * 1e9 / st.rate_hz)
         loss_timeout = st.link_timeout_s
         # the duration is device time (its SAMPLE clock), not a tick count: a device streaming faster or slower
@@ -383,6 +385,10 @@ class ControlLoop:
                     self._transitions()
                     return
                 r.seq_gaps += gap
+                if dev_us - prev_dev_us > skip_us:  # more than one period passed: lost SAMPLEs or the device's own skip
+                    missed = round((dev_us - prev_dev_us) / nominal_us) - 1 - gap
+                    if missed > 0:  # an overrunning device skips its timer periods without a SAMPLE (seq not skipped)
+                        r.device_skipped_periods += missed
                 if dev_us < prev_dev_us:  # the same session's clock went back: its times (and dt) cannot be used
                     self._zero()
                     sup.trip(seq, TripReason.SEQUENCE, f"the device clock went back from {prev_dev_us} µs to {dev_us} µs "

@@ -74,7 +74,8 @@ def summary_dict(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path
         "update_us": hist(r.update_us), "write_us": hist(r.write_us), "latency_us": hist(r.latency_us),
         "lateness_us": hist(r.lateness_us),
         "overruns": r.overruns, "skipped_periods": r.skipped_periods, "late_commands": r.late_commands,
-        "device_overruns": r.device_overruns, "seq_gaps": r.seq_gaps, "crc_errors": r.crc_errors,
+        "device_overruns": r.device_overruns,
+        "device_skipped_periods": r.device_skipped_periods, "seq_gaps": r.seq_gaps, "crc_errors": r.crc_errors,
         "dropped_log_messages": r.dropped_log_messages, "device_link": dict(r.device_link),
         "std_theta": _num(r.theta.std), "std_phi": _num(r.phi.std), "std_u": _num(r.u.std),
         "mean_u_comp": _num(r.u_comp.mean) if r.u_comp.n else None, "std_u_comp": _num(r.u_comp.std),
@@ -146,8 +147,8 @@ def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_pa
         f"  read {_p(r.read_us)};  update {_p(r.update_us)};  write {_p(r.write_us)}",
         f"  latency sample→command: {_p(r.latency_us)};  tick start lateness: {_p(r.lateness_us)}",
         f"  overruns {r.overruns} ({r.skipped_periods} periods skipped); device: late commands {r.late_commands}, "
-        f"own overruns {r.device_overruns}; seq gaps {r.seq_gaps}, CRC errors {r.crc_errors}, "
-        f"log drops {r.dropped_log_messages}",
+        f"own overruns {r.device_overruns} ({r.device_skipped_periods} periods skipped); seq gaps {r.seq_gaps}, "
+        f"CRC errors {r.crc_errors}, log drops {r.dropped_log_messages}",
     ]
     if r.device_link:
         d = r.device_link
