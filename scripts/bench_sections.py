@@ -749,6 +749,63 @@ def _bench_mock_module() -> Any:
     return mod
 
 
+def _answer_spinning(fd: int, other_fd: int, spin: bool) -> None:
+    """The answering side of ``link_ceiling``: every 20-byte frame gets a 12-byte answer."""
+    os.close(other_fd)
+    with contextlib.suppress(OSError):
+        while True:
+            got = 0
+            while got < 20:
+                if not spin:
+                    select.select([fd], [], [])
+                try:
+                    data = os.read(fd, 4096)
+                except BlockingIOError:
+                    continue
+                if not data:
+                    os._exit(0)
+                got += len(data)
+            os.write(fd, b"\x55" * 12)
+    os._exit(0)
+
+
+def link_ceiling(kind: str, spin: bool, rate: int, seconds: float) -> dict[str, float]:
+    """Round trips per second of two bare processes (normal priority, no furuta-rt code) answering frame for frame
+    over a pty or a socketpair, each side waiting in select or, with ``spin``, polling non-blocking reads (a
+    spinning SCHED_FIFO side would starve the kernel's normal-priority tty work and never be answered); one round
+    trip per device period, so the lockstep real-time factor of a device whose own work took no time."""
+    if kind == "pty":
+        dev_fd, host_fd = os.openpty()
+        tty.setraw(dev_fd)
+        tty.setraw(host_fd)
+    else:
+        a, b = socket.socketpair()
+        dev_fd, host_fd = a.detach(), b.detach()
+    os.set_blocking(dev_fd, False)
+    os.set_blocking(host_fd, False)
+    pid = os.fork()
+    if pid == 0:
+        _answer_spinning(host_fd, dev_fd, spin)
+    os.close(host_fd)
+    frame = b"\xaa" * 20
+    trips = 0
+    t0 = time.perf_counter()
+    end = t0 + seconds
+    while time.perf_counter() < end:
+        os.write(dev_fd, frame)
+        got = 0
+        while got < 12:
+            if not spin:
+                select.select([dev_fd], [], [])
+            with contextlib.suppress(BlockingIOError):
+                got += len(os.read(dev_fd, 4096))
+        trips += 1
+    wall = time.perf_counter() - t0
+    os.close(dev_fd)
+    os.waitpid(pid, 0)
+    return {"round_trip_us": wall / trips * 1e6, "real_time_factor": trips / rate / wall}
+
+
 @section("mock")
 def bench_mock(quick: bool) -> dict[str, Any]:
     """hil-mock's real-time factor at 1 kHz with LuGre arm friction (scripts/bench_mock's figures): the device tick
@@ -766,6 +823,8 @@ def bench_mock(quick: bool) -> dict[str, Any]:
     rtf_lock, lock_host, lock_dev = bm.pty_factor(eff, rate, "lockstep", seconds)
     after = bm.pty_ceiling(rate, seconds)
     ceiling = {k: (before[k] + after[k]) / 2 for k in ("real_time_factor", "round_trip_us", "device_cpu_us")}
+    links = {f"{kind}_{'spinning' if spin else 'blocking'}": link_ceiling(kind, spin, rate, seconds)
+             for kind in ("pty", "socketpair") for spin in (False, True)}
     _, rt_host, rt_dev = bm.pty_factor(eff, rate, "realtime", seconds)
     _, _, ref_rt_dev = bm.pty_factor(eff, rate, "realtime", seconds, ("--firmware", "python", "--plant", "python"))
     period_us = 1e6 / rate
@@ -775,6 +834,7 @@ def bench_mock(quick: bool) -> dict[str, Any]:
         "pty_ceiling_before_after": [before["real_time_factor"], after["real_time_factor"]],
         "pty_ceiling_device_priority": before.get("priority"), "pty_ceiling_device_cpu_us": ceiling["device_cpu_us"],
         "lockstep_of_ceiling": rtf_lock / ceiling["real_time_factor"],
+        "link_ceilings": links,
         "effects": " ".join(bm.LUGRE),
         "core_tick_us": tick_us, "core_real_time_factor": period_us / tick_us,
         "simulator_advance_us": sim_us, "simulator_real_time_factor": period_us / sim_us,
@@ -1267,6 +1327,12 @@ def table(res: dict[str, Any]) -> list[dict[str, Any]]:
         row("— the pty's own lockstep ceiling (two bare processes answering frame for frame, same run)",
             f"{m['pty_ceiling_real_time_factor']:.1f}× real time (round trip {m['pty_round_trip_us']:.0f} µs)",
             "hil-mock lockstep", f"hil-mock reaches {100 * m['lockstep_of_ceiling']:.0f}% of it")
+        lk = m["link_ceilings"]
+        row("— the same bare pair at normal priority: over a pty waiting in select / spinning; over a socketpair "
+            "waiting / spinning", " / ".join(f"{lk[k]['real_time_factor']:.1f}×" for k in
+                                             ("pty_blocking", "pty_spinning", "socketpair_blocking", "socketpair_spinning")),
+            "hil-mock lockstep", f"≥ 20× needs a round trip ≤ 50 µs; the pty's fastest here: "
+            f"{min(lk['pty_blocking']['round_trip_us'], lk['pty_spinning']['round_trip_us']):.0f} µs")
         calls = m["lockstep_pty_calls_per_tick"]
         row("— hil-mock's device per lockstep tick: CPU, pty system calls",
             f"{m['lockstep_device_cpu_us']:.0f} µs; {calls['writes']:.2f} writes, {calls['selects']:.2f} selects, "
