@@ -253,6 +253,7 @@ class CFirmware(Firmware):
             self._attach_plant(d, cal)
         self._d = d
         self._dref = ctypes.byref(d)
+        self._out = ctypes.addressof(d.out)
         self._bits = 0
         self._after(lib.hil_poll(self._dref))
 
@@ -294,11 +295,14 @@ class CFirmware(Firmware):
         if bits & _SLOW:
             d = self._d
             if bits & _FRAMES:
-                raw = bytes(d.out[:d.out_len])
-                pos = 0
-                for length in d.out_frame_len[:d.out_frames]:
-                    self.tx.append(raw[pos:pos + length])
-                    pos += length
+                if d.out_frames == 1:  # the common tick: one SAMPLE
+                    self.tx.append(ctypes.string_at(self._out, d.out_len))
+                else:
+                    raw = ctypes.string_at(self._out, d.out_len)
+                    pos = 0
+                    for length in d.out_frame_len[:d.out_frames]:
+                        self.tx.append(raw[pos:pos + length])
+                        pos += length
                 d.out_len = d.out_frames = 0
             if bits & _NEW_SESSION:  # a HELLO to an idle device: as Firmware._on_hello
                 if self.fused:  # device.c put the state back; the generator restarts from the seed

@@ -152,6 +152,7 @@ class VirtualDevice:
         self.delay_s = f.delay_ms / 1000.0
         self.pacing = dev.pacing
         self.waiter = DeadlineWaiter(dev.spin_us * 1e-6)
+        self.lockstep_spin_s = dev.lockstep_spin_us * 1e-6
         self._events: list[FaultEvent] = f.events()
         if model.arm_friction.lugre is not None and any(e.kind == "friction_step" for e in self._events):
             raise UserError("fault friction_step sets the arm's Coulomb level; this rig's arm friction is LuGre "
@@ -190,6 +191,8 @@ class VirtualDevice:
         # default) whenever the device thread wakes up; 0.2 ms keeps in-process ticks on time.
         self._saved_switch = sys.getswitchinterval()
         sys.setswitchinterval(min(self._saved_switch, IN_PROCESS_SWITCH_INTERVAL_S))
+        # A lockstep poll (--lockstep-spin-us) in a thread would hold the GIL its in-process host needs to answer.
+        self.lockstep_spin_s = 0.0
         self._thread = threading.Thread(target=self.run, name=f"hil-mock {self.port}", daemon=True)
         self._thread.start()
         return self
@@ -474,10 +477,17 @@ class VirtualDevice:
     def _await_answer(self, until: float) -> bool:
         fw = self.firmware
         self._drained = False
+        poll_until = time.perf_counter() + self.lockstep_spin_s if self.lockstep_spin_s else 0.0
         while not fw.answered:
             if self._stop.is_set() or self._fd is None:
                 return True
-            remaining = until - time.perf_counter()
+            now = time.perf_counter()
+            if now < poll_until:  # --lockstep-spin-us: non-blocking reads first, spares the wake-up from select
+                self._read()
+                if not self.connected:
+                    return False
+                continue
+            remaining = until - now
             if remaining <= 0:
                 return False
             if self._delayed or self._backlog:  # frames held by the delay fault or a full pty still have to go out

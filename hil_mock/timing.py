@@ -1,11 +1,11 @@
 """Real-time pacing of the device loop and its timing statistics.
 
 Deadlines are absolute (t0 + device clock), so errors never accumulate. Waiting is ``time.sleep``
-to shortly before the deadline, then a busy wait. On this kind of box (Linux, 2 shared cores)
-``time.sleep`` overshoots by ~90 µs median with the default 50 µs timer slack and by ~40 µs with the
-slack set to 1 µs (done per thread with prctl); the busy wait follows the overshoot measured as the device
-runs, up to ``spin_us`` (default 100 µs): the tick starts within a few µs of its deadline unless the
-scheduler preempts the thread (then it is simply late).
+to shortly before the deadline, then a busy wait. A sleep overshoots its wake-up time (tens of µs in a
+VM even with the timer slack set to 1 µs, per thread with prctl, and erratically so on a loaded machine);
+the busy wait follows the overshoot measured as the device runs, up to ``spin_us`` (default 100 µs), and
+spins only where that buys on-time starts (DeadlineWaiter). A tick the scheduler delays beyond that is
+simply late, and one a whole period late skips periods (counted as an overrun by the device).
 """
 
 from __future__ import annotations
@@ -14,11 +14,17 @@ import ctypes
 import os
 import threading
 import time
+from bisect import bisect_right
 from dataclasses import dataclass, field
 
 _PR_SET_TIMERSLACK = 29
 LATENESS_BUCKETS_US = (25, 50, 100, 250, 500, 1000, 2000, 5000, 10_000)
 SPIN_MARGIN_S = 5e-6
+FLOOR_Q = 0.1
+"""The quantile of the sleeps' overshoot the busy wait covers (DeadlineWaiter)."""
+QUANTILE_STEP_S = 2e-6
+"""How far the quantile estimate moves per wake-up: to a 40-µs floor in ~0.2 s at 1 kHz, and within a few µs of the
+quantile once there."""
 
 
 def set_timer_slack(ns: int = 1000) -> bool:
@@ -48,36 +54,52 @@ def raise_priority(rt_priority: int = 10) -> str:
 
 
 class DeadlineWaiter:
-    """Return at (or just after) absolute deadlines: sleep to shortly before each, then spin.
+    """Return at (or just after) absolute deadlines: sleep to shortly before each, then spin — only through the part of
+    the sleep's overshoot that nearly every wake-up has.
 
-    The spin lasts as long as this machine's sleeps overshoot now — their running mean (over ~32 wake-ups, each
-    counted at most ``max_spin_s``) and half as much again — never more than ``max_spin_s``: the tick starts on
-    time without burning the CPU a fixed long spin costs every period (a 100 µs spin is 10% of a core at 1 kHz,
-    taken from the host it shares two CPUs with)."""
+    A sleep wakes late by an overshoot X that varies from wake-up to wake-up. Waking S early and spinning starts the
+    tick on time whenever X ≤ S, at the CPU cost of S − X; when X > S the tick is late by X − S and the wait costs no
+    spin at all. So S at a low quantile of X (``floor_s``, the 10th percentile of the recent overshoots, plus a margin;
+    at most ``max_spin_s``) takes the steady part of the overshoot off every tick for almost no CPU, and a steady
+    overshoot (a quiet machine) is covered outright. Spinning towards the erratic upper part would cost the CPU one
+    for one — at SCHED_FIFO, where it also holds off the pty's kernel work on that CPU — for starts a few tens of µs
+    earlier, which change neither the device's late ticks nor overruns nor the host's late commands."""
 
-    __slots__ = ("max_spin_s", "overshoot_s")
+    __slots__ = ("floor_s", "max_spin_s")
 
     def __init__(self, max_spin_s: float) -> None:
         self.max_spin_s = max_spin_s
-        self.overshoot_s = max_spin_s  # until measured: the configured spin
+        self.floor_s = 0.0  # until measured: no spin
 
     @property
     def spin_s(self) -> float:
         """The spin before the next deadline."""
-        return min(self.max_spin_s, 1.5 * self.overshoot_s + SPIN_MARGIN_S)
+        return min(self.max_spin_s, self.floor_s + SPIN_MARGIN_S) if self.floor_s > 0.0 else 0.0
 
     def wait(self, deadline: float, spin: bool = True) -> None:
         """Return at ``deadline`` (perf_counter seconds); ``spin=False``: sleep to it (an idle device)."""
         pc = time.perf_counter
-        wake = deadline - (self.spin_s if spin else 0.0)
+        if not spin or self.max_spin_s <= 0.0:
+            remaining = deadline - pc()
+            if remaining > 0:
+                time.sleep(remaining)
+            return
+        wake = deadline - self.spin_s
         remaining = wake - pc()
         if remaining > 0:
             time.sleep(remaining)
-            if spin:
-                late = min(pc() - wake, self.max_spin_s)
-                self.overshoot_s += (late - self.overshoot_s) * (1.0 / 32.0)
+            self.learn(pc() - wake)
         while pc() < deadline:
             pass
+
+    def learn(self, overshoot: float) -> None:
+        """One wake-up's overshoot into the floor (a stochastic-approximation quantile: it moves up FLOOR_Q of a step
+        when the sample is above it, down the rest of a step when below, so it settles where FLOOR_Q of the samples
+        fall below it)."""
+        if overshoot < self.floor_s:
+            self.floor_s -= QUANTILE_STEP_S * (1.0 - FLOOR_Q)
+        else:
+            self.floor_s += QUANTILE_STEP_S * FLOOR_Q
 
 
 @dataclass(slots=True)
@@ -105,13 +127,7 @@ class TickTiming:
             self.worst_work_s = work
         if lateness > self.late_threshold_s:
             self.late_ticks += 1
-        us = lateness * 1e6
-        i = 0
-        for edge in LATENESS_BUCKETS_US:
-            if us < edge:
-                break
-            i += 1
-        self.histogram[i] += 1
+        self.histogram[bisect_right(LATENESS_BUCKETS_US, lateness * 1e6)] += 1
 
     def percentile_us(self, q: float) -> float:
         """Upper edge (µs) of the histogram bucket holding the q-quantile of lateness (inf if beyond)."""
