@@ -52,11 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--substep-hz", type=float, metavar="HZ", help="physics substep rate (default 10000)")
     p.add_argument("--pacing", choices=("realtime", "free", "lockstep"), help="default realtime")
     p.add_argument("--spin-us", type=float, metavar="US", help="longest busy-wait before a deadline (default 100)")
-    p.add_argument("--lockstep-spin-us", type=float, metavar="US",
-                   help="lockstep: poll for the COMMAND up to US µs before blocking (default 0; it takes a CPU while "
-                   "it polls, so leave it off where tests share the CPUs)")
     p.add_argument("--priority", choices=("normal", "realtime"),
-                   help="realtime (default): SCHED_FIFO for the device thread if permitted, else nice -10")
+                   help="realtime (default): in real-time pacing, SCHED_FIFO for the device thread if permitted, "
+                   "else nice -10")
     p.add_argument("--firmware", choices=("python", "c", "board"),
                    help="device logic: c (default), the microcontroller's C core built for this machine; python; or "
                         "board, the flashed image (scripts/build_firmware) on the register-level STM32F401 model")
@@ -121,7 +119,7 @@ def config_from_args(args: argparse.Namespace) -> MockConfig:
         device={
             "rate_hz": args.rate, "watchdog_ms": args.watchdog_ms, "seed": args.seed,
             "initial_theta": _initial_theta(args), "substep_hz": args.substep_hz, "pacing": args.pacing,
-            "spin_us": args.spin_us, "lockstep_spin_us": args.lockstep_spin_us, "priority": args.priority,
+            "spin_us": args.spin_us, "priority": args.priority,
             "firmware": args.firmware, "plant": args.plant,
         },
         fault_settings={

@@ -16,8 +16,7 @@ A mock TOML file (all tables optional)::
     substep_hz = 10000              # physics substep of the core simulator
     pacing = "realtime"             # realtime | free (as fast as possible) | lockstep (wait for each COMMAND)
     spin_us = 100                   # the longest busy-wait before a deadline (it covers the sleeps' steady overshoot)
-    lockstep_spin_us = 0            # lockstep: poll for the COMMAND this long before blocking (burns a CPU meanwhile)
-    priority = "realtime"           # SCHED_FIFO for the device thread if permitted (else nice -10); or "normal"
+    priority = "realtime"           # real-time pacing: SCHED_FIFO for the device thread if permitted (else nice -10)
     late_threshold_us = 250         # a tick starting later than this is counted late (default: period / 4)
     firmware = "c"                  # device logic: the microcontroller's C core built for this machine, or "python"
     plant = "compiled"              # the plant in C (furuta_rt/sim/csrc/plant.c), or "python": the reference simulator
@@ -65,7 +64,6 @@ class DeviceSettings(_Section):
     substep_hz: Annotated[float, Field(gt=0, le=1e6)] = 10_000.0
     pacing: Literal["realtime", "free", "lockstep"] = "realtime"
     spin_us: Annotated[float, Field(ge=0, le=2000)] = 100.0
-    lockstep_spin_us: Annotated[float, Field(ge=0, le=1000)] = 0.0
     priority: Literal["normal", "realtime"] = "realtime"
     late_threshold_us: Annotated[float, Field(gt=0)] | None = None  # default: a quarter period
     firmware: Literal["python", "c", "board"] = "c"  # device logic: the C core (hil_mock.c_firmware),

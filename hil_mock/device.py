@@ -152,7 +152,6 @@ class VirtualDevice:
         self.delay_s = f.delay_ms / 1000.0
         self.pacing = dev.pacing
         self.waiter = DeadlineWaiter(dev.spin_us * 1e-6)
-        self.lockstep_spin_s = dev.lockstep_spin_us * 1e-6
         self._events: list[FaultEvent] = f.events()
         if model.arm_friction.lugre is not None and any(e.kind == "friction_step" for e in self._events):
             raise UserError("fault friction_step sets the arm's Coulomb level; this rig's arm friction is LuGre "
@@ -181,6 +180,8 @@ class VirtualDevice:
         self._cpu_clock: int | None = None
         self._cpu_start = self._cpu_s = 0.0
         self._fd, self.port = open_raw_pty()
+        self._poller = select.poll()  # registered once: no fd sets built per wait, as select.select does
+        self._poller.register(self._fd, select.POLLIN)
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> VirtualDevice:
@@ -191,8 +192,6 @@ class VirtualDevice:
         # default) whenever the device thread wakes up; 0.2 ms keeps in-process ticks on time.
         self._saved_switch = sys.getswitchinterval()
         sys.setswitchinterval(min(self._saved_switch, IN_PROCESS_SWITCH_INTERVAL_S))
-        # A lockstep poll (--lockstep-spin-us) in a thread would hold the GIL its in-process host needs to answer.
-        self.lockstep_spin_s = 0.0
         self._thread = threading.Thread(target=self.run, name=f"hil-mock {self.port}", daemon=True)
         self._thread.start()
         return self
@@ -397,16 +396,17 @@ class VirtualDevice:
             return False
         self.pty_selects += 1
         try:
-            r, _, _ = select.select([fd], [], [], timeout)
+            return bool(self._poller.poll(timeout * 1000.0))  # POLLHUP (no host) too: the read then sees EIO
         except (OSError, ValueError):
             return False
-        return bool(r)
 
     # ------------------------------------------------------------ loop
     def run(self) -> None:
         """Serve until ``stop()`` or a disconnect fault (blocking)."""
         set_timer_slack()
-        if self.config.device.priority == "realtime" and self.pacing != "free":  # free-running must not hog a core
+        # Real-time pacing only: free-running must not hog a core, and lockstep keeps no deadline — at SCHED_FIFO its
+        # every wake-up for a COMMAND costs more CPU and holds off the pty's kernel work on its CPU (slower, not faster).
+        if self.config.device.priority == "realtime" and self.pacing == "realtime":
             self.priority = raise_priority()
         fw = self.firmware
         timing = self.timing
@@ -477,17 +477,10 @@ class VirtualDevice:
     def _await_answer(self, until: float) -> bool:
         fw = self.firmware
         self._drained = False
-        poll_until = time.perf_counter() + self.lockstep_spin_s if self.lockstep_spin_s else 0.0
         while not fw.answered:
             if self._stop.is_set() or self._fd is None:
                 return True
-            now = time.perf_counter()
-            if now < poll_until:  # --lockstep-spin-us: non-blocking reads first, spares the wake-up from select
-                self._read()
-                if not self.connected:
-                    return False
-                continue
-            remaining = until - now
+            remaining = until - time.perf_counter()
             if remaining <= 0:
                 return False
             if self._delayed or self._backlog:  # frames held by the delay fault or a full pty still have to go out
