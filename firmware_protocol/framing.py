@@ -149,16 +149,17 @@ def encode(msg: Message) -> bytes:
 
 
 _COMMAND_STRUCT = SPECS[MsgType.COMMAND].struct
+_COMMAND_TYPE = int(MsgType.COMMAND)
 
 
 def encode_command(session: int, seq: int, value_counts: int, flags: int) -> bytes:
     """Fast path for the per-tick COMMAND frame (no dataclass): ``session`` is the nonce of the HELLO that started
     the session, ``seq`` the SAMPLE answered (wraps modulo 2**32)."""
     try:
-        inner = _COMMAND_STRUCT.pack(MsgType.COMMAND, session, seq & 0xFFFFFFFF, value_counts, flags)
+        inner = _COMMAND_STRUCT.pack(_COMMAND_TYPE, session, seq & 0xFFFFFFFF, value_counts, flags)
     except struct.error as exc:
         raise EncodeError(f"Command: {exc}") from None
-    return _frame(inner)
+    return _stuff(inner + crc_hqx(inner, CRC_INIT).to_bytes(2, "big"))  # _frame, inline: once per tick
 
 
 def try_decode_frame(frame: bytes | bytearray) -> Message | int:

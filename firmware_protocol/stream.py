@@ -72,6 +72,19 @@ class StreamDecoder:
             chunk = bytes(chunk)
         if self._buf:
             chunk = self._buf + chunk
+        end = len(chunk) - 1
+        if 0 < end <= self.max_frame_len and chunk.find(0) == end and not self._skipping:
+            # one whole frame and its delimiter (a device's tick read at once): the loop below, for one part
+            self._buf = b""
+            msg = try_decode_frame(chunk[:end])
+            if isinstance(msg, int):
+                self._reject(msg, end)
+                return []
+            self.frames_ok += 1
+            if self._lost:
+                self.resyncs += 1
+                self._lost = False
+            return [msg]
         parts = chunk.split(b"\x00")
         tail = parts.pop()
         out: list[Message] = []

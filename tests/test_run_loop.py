@@ -507,6 +507,22 @@ def test_histogram_percentiles_and_running_stats() -> None:
     h.add(5000.0)  # overflow: the max stays exact
     assert h.percentile(0.5) == 51 and h.percentile(0.99) == 100 and h.max == 5000.0 and h.min == 0.5
     assert math.isnan(Histogram().percentile(0.5))
+    # values appended to ``pending`` and folded in batches (the loop's way) bin as one ``add`` each: percentiles read
+    # off a sorted copy, out-of-range values in the first and the last bin
+    rng = np.random.default_rng(1)
+    values = [float(v) for v in np.concatenate([rng.gamma(2.0, 40.0, 5000), [-3.0, 0.0, 999.99, 1000.0, 1e6]])]
+    rng.shuffle(values)
+    batched = Histogram(size=1000)
+    for k, v in enumerate(values):
+        batched.pending.append(v)
+        if k % 97 == 0:
+            batched.fold()
+    clamped = sorted(min(max(int(v), 0), 1000) for v in values)
+    for q in (0.01, 0.5, 0.9, 0.99, 0.999, 1.0):
+        i = clamped[math.ceil(q * len(values)) - 1]  # the bin holding the q-th value
+        assert batched.percentile(q) == (min(i + 1.0, max(values)) if i < 1000 else max(values)), q
+    assert (batched.count, batched.max, batched.min) == (len(values), 1e6, -3.0) and batched.pending == []
+    assert batched.mean == pytest.approx(float(np.mean(values)), rel=1e-12) and sorted(batched.bins) == sorted(set(clamped))
     rs = RunningStats()
     data = np.random.default_rng(0).normal(1.0, 2.0, 1000)
     for x in data:

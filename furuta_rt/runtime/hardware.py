@@ -256,23 +256,37 @@ class SerialHardware(HardwareInterface):
         """Write the whole frame, waiting up to ``timeout`` s (default WRITE_TIMEOUT_S) for the port to
         take the rest; LinkLost if it does not, or if the port fails. A frame cut short would corrupt
         the next one too (PROTOCOL.md §2.1), so the next frame starts with a delimiter."""
-        if self._torn:
-            frame = b"\x00" + frame
-        limit = self.WRITE_TIMEOUT_S if timeout is None else timeout
-        view = memoryview(frame)
-        start = 0.0
-        while True:
+        wrote = not self._torn
+        if wrote:  # the common case: the port takes the whole frame in one write
             try:
-                n = os.write(self._fd, view)
+                n = os.write(self._fd, frame)
             except BlockingIOError:
                 n = 0
             except OSError as err:
-                self._torn = self._torn or len(view) < len(frame)
                 raise LinkLost(f"write to {self.port} failed: {err}") from None
-            view = view[n:]
-            if not view:
-                self._torn = False
+            if n == len(frame):
                 return
+        else:
+            frame = b"\x00" + frame
+            n = 0
+        limit = self.WRITE_TIMEOUT_S if timeout is None else timeout
+        view = memoryview(frame)[n:]
+        start = 0.0
+        while True:
+            if wrote:  # the rest after the first write's part
+                wrote = False
+            else:
+                try:
+                    n = os.write(self._fd, view)
+                except BlockingIOError:
+                    n = 0
+                except OSError as err:
+                    self._torn = self._torn or len(view) < len(frame)
+                    raise LinkLost(f"write to {self.port} failed: {err}") from None
+                view = view[n:]
+                if not view:
+                    self._torn = False
+                    return
             now = time.perf_counter()
             if not start:
                 start = now

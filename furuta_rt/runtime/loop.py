@@ -179,10 +179,6 @@ class ControlLoop:
     def _signal(self, signum: int, _frame: object) -> None:
         self.request_stop(signal.Signals(signum).name)
 
-    def _counts(self, u: float) -> int:
-        c = round(u / self.full_scale * COMMAND_FULL_SCALE)
-        return COMMAND_FULL_SCALE if c > COMMAND_FULL_SCALE else max(c, -COMMAND_FULL_SCALE)
-
     def _zero(self) -> None:
         """Zero the actuator now (``hw.stop``: u = 0 the device accepts, then STOP). Never raises."""
         try:
@@ -329,9 +325,11 @@ class ControlLoop:
         batch_ticks = st.batch_ticks
         snap_ticks = st.snapshot_ticks if self.dashboard is not None else 0
         log_on = self.log is not None
-        counts = self._counts
-        h_period, h_jit, h_read, h_upd, h_wr, h_lat, h_late = (
-            r.period_us, r.jitter_us, r.read_us, r.update_us, r.write_us, r.latency_us, r.lateness_us)
+        full_scale = self.full_scale
+        wall_off = self._wall0 - self._perf0  # a host perf_counter_ns on the wall clock (``_wall``)
+        hists = (r.period_us, r.jitter_us, r.read_us, r.update_us, r.write_us, r.latency_us, r.lateness_us)
+        h_period, h_jit, h_read, h_upd, h_wr, h_lat, h_late = (h.pending.append for h in hists)  # binned by fold
+        fold_in = batch_ticks
         prev_start = 0
         prev_seq = -1
         prev_balancing = False
@@ -468,12 +466,13 @@ class ControlLoop:
                 skipped = ended_run + 1
             if state is _TRIPPED or not stale:
                 if acting:
-                    hw.write(seq, counts(u), _ENABLE)
+                    c = round(u / full_scale * COMMAND_FULL_SCALE)  # u in COMMAND counts, clipped to full scale
+                    hw.write(seq, COMMAND_FULL_SCALE if c > COMMAND_FULL_SCALE else max(c, -COMMAND_FULL_SCALE), _ENABLE)
                 else:  # zero; clear a latched fault while waiting to arm
                     hw.write(seq, 0, _CLEAR_FAULT if (status & _FAULT_MASK and state is State.IDLE) else 0)
                 t4 = perf()
                 latency_us = (t4 - est_ns) * 1e-3
-                h_lat.add(latency_us)
+                h_lat(latency_us)
             else:
                 t4 = t3
                 latency_us = -1.0
@@ -487,12 +486,17 @@ class ControlLoop:
             if dev < 0:
                 dev = -dev
             if n:
-                h_period.add(period_us)
-                h_jit.add(dev)
-            h_read.add(read_us)
-            h_upd.add(update_us)
-            h_wr.add(write_us)
-            h_late.add(lateness_us)
+                h_period(period_us)
+                h_jit(dev)
+            h_read(read_us)
+            h_upd(update_us)
+            h_wr(write_us)
+            h_late(lateness_us)
+            fold_in -= 1
+            if not fold_in:
+                fold_in = batch_ticks
+                for h in hists:
+                    h.fold()
             r.ticks = n + 1
             if n == 0:
                 first_t1 = t1
@@ -514,7 +518,7 @@ class ControlLoop:
                     r.trace.add(m.t, theta, phi)
             if log_on:
                 self._batch.append((
-                    self._wall0 + (seen - self._perf0), dev_us * 1000, seq, dev_us * 1e-6,
+                    wall_off + seen, dev_us * 1000, seq, dev_us * 1e-6,
                     s.theta_adc, s.theta_dot_adc, s.phi_count, status,
                     theta_dev, theta_dot, phi_dev, phd, u, u_lin, u_comp, sat, int(state), reset,
                     period_us, read_us, update_us, write_us, latency_us, lateness_us,

@@ -1,12 +1,14 @@
 """Timing accounting of the control loop: device clock, O(1) histograms, running statistics.
 
-Everything here runs every tick inside the control process, so it is plain Python on ints and floats
-with no allocation: a histogram is a preallocated list of 1 µs bins.
+Everything here runs every tick inside the control process, so it is plain Python on ints and floats: a
+histogram counts 1 µs bins. The loop appends a tick's timings to each histogram's ``pending`` list (a C
+call) and bins them in batches (``fold``: C loops) after the command is out.
 """
 
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass
 
 _WRAP_US = 1 << 32
@@ -59,51 +61,89 @@ class DeviceClock:
 class Histogram:
     """Counts of non-negative values in 1-unit bins up to ``size``; larger values fall in the last bin.
 
-    ``max``/``min``/``mean`` are exact; percentiles are exact to one bin below the overflow bin.
+    ``max``/``min``/``mean`` are exact; percentiles are exact to one bin below the overflow bin. The loop appends
+    a tick's value to ``pending`` (one C call) and ``fold`` bins a batch of them in C loops (a Counter of the
+    bins in use); every reader below folds first.
     """
 
-    __slots__ = ("bins", "count", "max", "min", "size", "total")
+    __slots__ = ("_count", "_max", "_min", "_total", "bins", "pending", "size")
 
     def __init__(self, size: int = 20_000) -> None:
         self.size = size
-        self.bins = [0] * (size + 1)
-        self.count = 0
-        self.total = 0.0
-        self.max = -math.inf
-        self.min = math.inf
+        self.bins: Counter[int] = Counter()  # bin → count, bins 0..size only
+        self._count = 0
+        self._total = 0.0
+        self._max = -math.inf
+        self._min = math.inf
+        self.pending: list[float] = []
 
     def add(self, value: float) -> None:
-        i = int(value)
-        if i < 0:
-            i = 0
-        elif i > self.size:
-            i = self.size
-        self.bins[i] += 1
-        self.count += 1
-        self.total += value
-        if value > self.max:
-            self.max = value
-        if value < self.min:
-            self.min = value
+        self.pending.append(value)
+        self.fold()
+
+    def fold(self) -> None:
+        """Bin the values waiting in ``pending`` and empty it (the same list: the loop holds its ``append``)."""
+        values = self.pending
+        if not values:
+            return
+        bins = self.bins
+        bins.update(map(int, values))
+        self._count += len(values)
+        self._total += sum(values)
+        hi, lo = max(values), min(values)
+        if hi > self._max:
+            self._max = hi
+        if lo < self._min:
+            self._min = lo
+        size = self.size
+        if hi >= size + 1 or lo < 0:  # rare: out-of-range values into the first and the last bin
+            for i in {int(v) for v in values if not 0 <= v < size + 1}:
+                if i < 0 or i > size:
+                    bins[0 if i < 0 else size] += bins.pop(i)
+        values.clear()
+
+    @property
+    def count(self) -> int:
+        self.fold()
+        return self._count
+
+    @property
+    def total(self) -> float:
+        self.fold()
+        return self._total
+
+    @property
+    def max(self) -> float:
+        self.fold()
+        return self._max
+
+    @property
+    def min(self) -> float:
+        self.fold()
+        return self._min
 
     def percentile(self, q: float) -> float:
         """Value below which a fraction ``q`` (0..1) of the samples lie (bin upper edge), NaN if empty."""
-        if self.count == 0:
+        count = self.count
+        if count == 0:
             return math.nan
-        target = q * self.count
+        target = q * count
         acc = 0
-        for i, c in enumerate(self.bins):
+        for i in sorted(self.bins):
+            c = self.bins[i]
             acc += c
             if acc >= target and c:
-                return min(float(i + 1), self.max) if i < self.size else self.max
-        return self.max
+                return min(float(i + 1), self._max) if i < self.size else self._max
+        return self._max
 
     @property
     def mean(self) -> float:
-        return self.total / self.count if self.count else math.nan
+        count = self.count
+        return self._total / count if count else math.nan
 
     def summary(self) -> dict[str, float]:
-        return {"p50": self.percentile(0.5), "p99": self.percentile(0.99), "max": self.max if self.count else math.nan,
+        count = self.count
+        return {"p50": self.percentile(0.5), "p99": self.percentile(0.99), "max": self._max if count else math.nan,
                 "mean": self.mean}
 
 
