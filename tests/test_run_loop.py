@@ -368,6 +368,21 @@ def test_ticks_missing_from_a_run_are_the_devices_skipped_periods_and_lost_sampl
     assert "own overruns 2 (4 periods skipped)" in format_summary(r, rate_hz=RATE, mode="none", rig=rig.name, log_path=None)
 
 
+def test_the_summary_reports_the_control_processs_cpu_a_tick(rig: RigConfig) -> None:
+    """CPU time, not wall time: the loop thread's own (≤ the run's wall time, however loaded the machine) and the
+    whole process's, per tick, in the JSON and the printed summary."""
+    dev = SimDevice(rig)
+    loop, _ = make_loop(rig, dev, duration=1.0)
+    start = time.perf_counter()
+    r = loop.run()
+    wall = time.perf_counter() - start
+    assert r.ticks == RATE and 0 < r.loop_cpu_s <= wall and r.process_cpu_s >= r.loop_cpu_s - 1e-3
+    cpu = summary_dict(r, rate_hz=RATE, mode="none", rig=rig.name, log_path=None, warnings=[])["control_cpu_us_per_tick"]
+    assert cpu == {"loop": pytest.approx(r.loop_cpu_s / RATE * 1e6), "process": pytest.approx(r.process_cpu_s / RATE * 1e6)}
+    text = format_summary(r, rate_hz=RATE, mode="none", rig=rig.name, log_path=None)
+    assert f"control CPU a tick: {cpu['loop']:.0f} µs in the loop ({cpu['loop'] * RATE * 1e-4:.1f} % of the period)" in text
+
+
 def test_stale_samples_skip_whole_periods_without_commands(rig: RigConfig) -> None:
     """A host stall delivers 4 samples at once: all four are ticks (logged, observer stepped), the three
     stale ones get no COMMAND, and it counts as one overrun of 3 skipped periods."""

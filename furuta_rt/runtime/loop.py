@@ -118,6 +118,8 @@ class LoopResult:
     first_catch_s: float = math.nan  # device time from the start of the swing-up to its first catch
     first_catch_run_s: float = math.nan  # device time from the run's first tick to the first catch
     calibration: StartupCalibration | None = None
+    loop_cpu_s: float = 0.0  # CPU time of the loop's thread over the run (not wall time: what a tick costs the machine)
+    process_cpu_s: float = 0.0  # ... and of the whole control process (its queue feeder and watcher threads too)
 
     @property
     def rate_hz(self) -> float:
@@ -246,6 +248,7 @@ class ControlLoop:
     # ----------------------------------------------------------------- the loop
     def run(self) -> LoopResult:
         old = stop_signals.install(self._signal)  # Ctrl-C, Ctrl-\, kill, a closed terminal: an operator stop
+        cpu0, process0 = time.thread_time(), time.process_time()
         try:
             self._run()
         except LinkLost as err:
@@ -263,6 +266,8 @@ class ControlLoop:
             raise
         finally:
             self._zero()  # u = 0 and STOP on every path (a no-op if done; tries again if it failed)
+            self.result.loop_cpu_s = time.thread_time() - cpu0
+            self.result.process_cpu_s = time.process_time() - process0
             if self._stop_error is not None and self._port_gone:  # the trip message already says why
                 self.event("WARNING", "u = 0 and STOP not sent (the port is gone): the device zeroes its "
                            "actuator on the hang-up or by its watchdog")

@@ -77,6 +77,7 @@ def summary_dict(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path
         "device_overruns": r.device_overruns,
         "device_skipped_periods": r.device_skipped_periods, "seq_gaps": r.seq_gaps, "crc_errors": r.crc_errors,
         "dropped_log_messages": r.dropped_log_messages, "device_link": dict(r.device_link),
+        "control_cpu_us_per_tick": _cpu_per_tick(r),
         "std_theta": _num(r.theta.std), "std_phi": _num(r.phi.std), "std_u": _num(r.u.std),
         "mean_u_comp": _num(r.u_comp.mean) if r.u_comp.n else None, "std_u_comp": _num(r.u_comp.std),
         "limit_cycle_phi": asdict(lc_phi) if lc_phi else None, "limit_cycle_theta": asdict(lc_theta) if lc_theta else None,
@@ -86,6 +87,13 @@ def summary_dict(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_path
         "log": log_path, "log_ticks": log_ticks, "warnings": warnings,
         "events": [{"wall_ns": t, "level": lvl, "message": m} for t, lvl, m in r.events],
     }
+
+
+def _cpu_per_tick(r: LoopResult) -> dict[str, float] | None:
+    """CPU time a tick (µs) of the loop's thread and of the whole control process (None before the first tick)."""
+    if not r.ticks:
+        return None
+    return {"loop": r.loop_cpu_s / r.ticks * 1e6, "process": r.process_cpu_s / r.ticks * 1e6}
 
 
 def _swing_up_dict(r: LoopResult, rate_hz: float) -> dict[str, Any] | None:
@@ -150,6 +158,10 @@ def format_summary(r: LoopResult, *, rate_hz: float, mode: str, rig: str, log_pa
         f"own overruns {r.device_overruns} ({r.device_skipped_periods} periods skipped); seq gaps {r.seq_gaps}, "
         f"CRC errors {r.crc_errors}, log drops {r.dropped_log_messages}",
     ]
+    cpu = _cpu_per_tick(r)
+    if cpu is not None:
+        lines.append(f"  control CPU a tick: {cpu['loop']:.0f} µs in the loop ({cpu['loop'] * rate_hz * 1e-4:.1f} % of the "
+                     f"period), {cpu['process']:.0f} µs with its helper threads")
     if r.device_link:
         d = r.device_link
         lines.append(f"  device's receiver (its last STATUS, this session): CRC errors {d.get('crc_errors', 0)}, "
