@@ -6,6 +6,7 @@ the same run. The hints of the other states are checked on the rendered panel.""
 from __future__ import annotations
 
 import fcntl
+import itertools
 import math
 import os
 import pty
@@ -91,7 +92,12 @@ def test_dashboard_in_a_terminal_shows_the_motion_and_the_limit_cycle(tmp_path: 
     assert rc == 0 and traceback_free(err + screen), err
     text = ANSI.sub("", screen)
     frames = text.split("Ctrl-C to stop")
-    assert len(frames) > 20, "the dashboard redrew about 10 times a second"
+    # a frame per snapshot it got (the loop sends 10 a second of the run, skipping those a dashboard still busy has
+    # no room for), in the run's order, from its first second to its last, never still for 2 s of it: redrawn live
+    times = [float(m.group(1)) for f in frames if (m := re.search(r"time +([\d.]+) s", f))]
+    assert times == sorted(times) and times[0] < 1.0 and times[-1] > 9.0, times
+    assert len(set(times)) - 1 <= 10.5 * (times[-1] - times[0]), f"more redraws than snapshots: {times}"
+    assert max(b - a for a, b in itertools.pairwise(times)) < 2.0, f"the dashboard stood still: {times}"
     last = frames[-2]  # the last frame drawn (what stays on the terminal)
     assert "BALANCING" in last and f"log: {log_path}" in last
     assert "balancing: trips on |θ| > 0.5 rad" in last

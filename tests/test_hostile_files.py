@@ -24,6 +24,7 @@ from test_reliability_harness import (
     read_summary,
     start_daemon,
     traceback_free,
+    wait_until_locked,
     write_test_rig,
 )
 
@@ -131,6 +132,7 @@ def test_a_log_being_written_is_locked_against_force_repair_and_a_second_run(tmp
     log = tmp_path / "run.mcap"
     try:
         daemon.wait_for_line("→ balancing")
+        wait_until_locked(log)  # the logger opens the file after the handshake, in its own time
         second = _cli("run", "--mock", "--no-tui", "--duration", "2", "--force", "--log", str(log),
                       "--summary-json", str(tmp_path / "second.json"))
         _one_line(second, "being written", str(log))

@@ -14,6 +14,7 @@ import shutil
 import socket
 import struct
 import subprocess
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -21,7 +22,7 @@ from typing import Any
 import numpy as np
 import pytest
 import websockets
-from test_reliability_harness import FURUTA_RT, DaemonProcess, traceback_free
+from test_reliability_harness import FURUTA_RT, DaemonProcess, run_queue_wait_s, traceback_free
 
 from furuta_rt.io import log_schema as ls
 from furuta_rt.runtime.live import LAYOUT_PATH, MAX_LIVE_HZ, layout
@@ -55,8 +56,8 @@ def free_port() -> int:
 
 
 async def _listen(port: int, topics: tuple[str, ...], seconds: float) -> dict[str, Any]:
-    """Connect (retrying while the daemon starts), subscribe to ``topics``, collect messages for ``seconds``
-    from the first one."""
+    """Connect (retrying while the daemon starts), subscribe to ``topics``, collect messages until their stamps span
+    ``seconds`` of the run's time (or the run ends): the run's clock, not how fast a loaded machine delivers them."""
     end_connect = time.monotonic() + 60
     while True:
         try:
@@ -68,13 +69,13 @@ async def _listen(port: int, topics: tuple[str, ...], seconds: float) -> dict[st
             await asyncio.sleep(0.1)
     out: dict[str, Any] = {"subprotocol": ws.subprotocol, "channels": {}, "messages": {t: [] for t in topics}}
     subs: dict[int, str] = {}
-    end = None
+    first = last = 0
     async with ws:
-        while end is None or time.monotonic() < end:
+        while not first or last - first < seconds * 1e9:
             try:
-                msg = await asyncio.wait_for(ws.recv(), 1.0)
-            except TimeoutError:
-                continue
+                msg = await asyncio.wait_for(ws.recv(), 60.0)
+            except websockets.exceptions.ConnectionClosed:
+                break  # the run ended
             if isinstance(msg, str):
                 m = json.loads(msg)
                 if m["op"] == "advertise":
@@ -84,11 +85,15 @@ async def _listen(port: int, topics: tuple[str, ...], seconds: float) -> dict[st
                     await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
                         {"id": c["id"], "channelId": c["id"]} for c in wanted]}))
             elif msg[0] == 0x01:  # MessageData: opcode, u32 subscription, u64 timestamp, payload
-                _, sub, stamp = struct.unpack_from("<BIQ", msg)
-                out["messages"][subs[sub]].append((stamp, time.time_ns(), json.loads(msg[13:])))
-                if end is None:  # the device streams: count from here
-                    end = time.monotonic() + seconds
+                _, sub, last = struct.unpack_from("<BIQ", msg)
+                out["messages"][subs[sub]].append((last, time.time_ns(), json.loads(msg[13:])))
+                first = first or last
     return out
+
+
+def _span_s(stamps: list[int]) -> float:
+    """The run time (s) a client's messages cover, from their stamps."""
+    return (max(stamps) - min(stamps)) * 1e-9 if stamps else 0.0
 
 
 @pytest.mark.hil
@@ -119,7 +124,12 @@ def test_both_protocol_names_receive_the_joint_states_of_a_mock_run() -> None:
     async def both() -> tuple[dict[str, Any], int]:
         return await asyncio.gather(_listen(port, (ls.JOINT_STATES_TOPIC, ls.TICK_TOPIC), 2.0), _refused(port))
 
+    def waited() -> float:  # run-queue wait of the path a message takes: the run's logger (the server), this client
+        return sum(run_queue_wait_s(pid) for pid in d.spawned()) + run_queue_wait_s(os.getpid(), threading.get_native_id())
+
+    waited_s = -waited()
     got, refused = asyncio.run(both())
+    waited_s = max(0.0, waited_s + waited())  # 0 if the run ended meanwhile (its logger's count gone)
     out, err = official.communicate(timeout=120)
     rc = d.wait(timeout=120)
     assert rc == 0 and traceback_free(d.stderr + d.stdout), d.stderr
@@ -131,7 +141,8 @@ def test_both_protocol_names_receive_the_joint_states_of_a_mock_run() -> None:
     assert fox["subprotocol"] == "foxglove.websocket.v1" and not fox["errors"], fox["errors"]
     assert ls.JOINT_STATES_TOPIC in fox["channels"] and ls.COMPENSATION_TOPIC in fox["channels"]
     fox_joints = fox["messages"][ls.JOINT_STATES_TOPIC]
-    assert len(fox_joints) > 0.7 * 2.0 * MAX_LIVE_HZ, f"{len(fox_joints)} joint states in 2 s"
+    span = _span_s([int(stamp) for stamp, _, _ in fox_joints])  # of the run's time (2 s, less if the run ended)
+    assert span > 1.0 and len(fox_joints) > 0.7 * span * MAX_LIVE_HZ, f"{len(fox_joints)} joint states in {span:.2f} s"
     for stamp, _, body in fox_joints:
         assert body["timestamp"]["sec"] * 1_000_000_000 + body["timestamp"]["nsec"] == int(stamp)
         assert [j["name"] for j in body["joints"]] == ["theta", "phi"] and abs(body["joints"][0]["position"]) < 0.1
@@ -148,15 +159,20 @@ def test_both_protocol_names_receive_the_joint_states_of_a_mock_run() -> None:
     joints = got["messages"][ls.JOINT_STATES_TOPIC]
     ticks = got["messages"][ls.TICK_TOPIC]
     every = round(RATE / MAX_LIVE_HZ)  # the live view sends every k-th tick (the log has them all)
-    assert len(joints) > 0.7 * 2.0 * RATE / every, f"{len(joints)} joint states in 2 s at {RATE} Hz / {every}"
+    span = _span_s([stamp for stamp, _, _ in joints])
+    assert span > 1.0 and len(joints) > 0.7 * span * RATE / every, (
+        f"{len(joints)} joint states in {span:.2f} s at {RATE} Hz / {every}")
     seqs = sorted(b["seq"] for _, _, b in ticks)
     assert all(s % every == 0 for s in seqs) and min(set(np.diff(seqs))) == every
     stamps = sorted(stamp for stamp, _, _ in ticks)  # at most MAX_LIVE_HZ a second of the run's time
     assert (len(stamps) - 1) / ((stamps[-1] - stamps[0]) * 1e-9) <= MAX_LIVE_HZ * 1.005
-    for stamp, received, body in joints:
+    # on the wall clock (one time base: never ahead of it) and live: half the messages within a second, none later
+    # than 2 s beyond the time a loaded machine kept this client or the run waiting for a CPU
+    late = sorted((received - stamp) * 1e-9 for stamp, received, _ in joints)
+    assert late[0] >= 0 and late[len(late) // 2] < 1.0 and late[-1] < 2.0 + waited_s, (late[::50], waited_s)
+    for stamp, _, body in joints:
         assert [j["name"] for j in body["joints"]] == ["theta", "phi"]
         assert body["timestamp"]["sec"] * 1_000_000_000 + body["timestamp"]["nsec"] == stamp  # one time base
-        assert 0 <= received - stamp < 2_000_000_000  # on the wall clock, live (not 1970, not late by seconds)
     # the loop was balancing: θ near upright, u the controller's (φ's effort), the tick's own values
     by_seq = {b["seq"]: b for _, _, b in ticks}
     balancing = [b for b in by_seq.values() if b["state"] == "balancing"]

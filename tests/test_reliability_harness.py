@@ -667,11 +667,66 @@ class DaemonProcess:
 
     def children(self) -> list[int]:
         """pids of the daemon's child processes (logger, dashboard, mock)."""
-        try:
-            text = Path(f"/proc/{self.pid}/task/{self.pid}/children").read_text()
-        except OSError:
-            return []
-        return [int(p) for p in text.split()]
+        return children_of(self.pid)
+
+    def spawned(self) -> list[int]:
+        """pids of the daemon's own helper processes (logger, dashboard: started by multiprocessing), not the mock."""
+        out = []
+        for pid in self.children():
+            with contextlib.suppress(OSError):
+                if "multiprocessing.spawn" in Path(f"/proc/{pid}/cmdline").read_text():
+                    out.append(pid)
+        return out
+
+    def run_queue_wait_s(self) -> float:
+        """Seconds the daemon's threads and its logger's and dashboard's spent runnable but not running so far (the
+        scheduler's run-queue wait): the time a loaded machine kept them from their work, summed (an upper bound of
+        what it can have delayed). The difference of two readings covers the time between them."""
+        return sum(run_queue_wait_s(pid) for pid in [self.pid, *self.spawned()])
+
+
+def children_of(pid: int) -> list[int]:
+    """pids of the child processes of ``pid`` (none once it is gone)."""
+    try:
+        text = Path(f"/proc/{pid}/task/{pid}/children").read_text()
+    except OSError:
+        return []
+    return [int(p) for p in text.split()]
+
+
+def run_queue_wait_s(pid: int, tid: int | None = None) -> float:
+    """The run-queue wait of the threads of ``pid`` so far, or of its thread ``tid``, from
+    /proc/PID/task/TID/schedstat (0 for a process already gone)."""
+    total = 0
+    for stat in Path(f"/proc/{pid}/task").glob(f"{'*' if tid is None else tid}/schedstat"):
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            total += int(stat.read_text().split()[1])
+    return total * 1e-9
+
+
+def write_locked(path: Path) -> bool:
+    """A process holds an exclusive flock on ``path`` (read from /proc/locks: taking a lock to find out could make a
+    run's own non-blocking lock fail)."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return False
+    key = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    for line in Path("/proc/locks").read_text().splitlines():
+        fields = line.split()
+        if "FLOCK" in fields and "WRITE" in fields and key in fields:
+            return True
+    return False
+
+
+def wait_until_locked(path: Path, timeout: float = 60.0) -> None:
+    """Until a running furuta-rt holds the write lock of ``path`` (its logger takes it when it opens the file,
+    after the handshake: a state line on stderr does not mean the logger got there)."""
+    end = time.monotonic() + timeout
+    while not write_locked(path):
+        if time.monotonic() > end:
+            raise TimeoutError(f"no run took the lock of {path} within {timeout:g} s")
+        time.sleep(0.01)
 
 
 def start_daemon(tmp: Path, port: str, *, duration: float | None, watchdog_ms: int = 500, log: bool = True,

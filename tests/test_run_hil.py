@@ -50,6 +50,9 @@ pytestmark = pytest.mark.hil
 RATE = 500
 FRICTION = "arm_coulomb.Fc=0.3"  # the thesis rig's arm friction, which its [compensation] parameters match
 ENABLE = int(fp.CommandFlags.ENABLE)
+KILL_LOSS_BOUND_S = 1.6
+"""Log lost to a SIGKILL: the logger ends a chunk every 0.5 s (plus the loop's 0.1 s batches and the logger's
+0.2 s queue poll) given the CPU; the daemon's run-queue wait (the time a loaded machine held it back) comes on top."""
 
 
 def mock_run(tmp: Path, name: str, seconds: float, *extra: str) -> DaemonProcess:
@@ -231,19 +234,25 @@ def test_sigint_stops_cleanly_with_zero_log_closed_summary_printed(tmp_path: Pat
 
 
 def test_killed_run_leaves_a_log_readable_to_its_last_second(tmp_path: Path) -> None:
-    """SIGKILL to the daemon, its logger and the mock at once: the chunks flushed every second remain."""
+    """SIGKILL to the daemon and its logger at once: the chunks flushed every half second remain. The loss is the kill's
+    wall time against the log's last tick, stamped on the device's clock mapped to the wall clock (the log's time
+    base), so ticks the machine's load kept from happening are not counted as lost."""
     d = mock_run(tmp_path, "killed", 60.0)
     d.wait_for_line("→ balancing")
-    t_balance = time.monotonic()
+    waited_s = -d.run_queue_wait_s()
     time.sleep(3.0)
+    waited_s += d.run_queue_wait_s()
+    t_kill, t0 = time.time_ns(), time.monotonic()
     d.kill_group(signal.SIGKILL)
-    killed_after = time.monotonic() - t_balance
+    kill_s = time.monotonic() - t0  # the kill landed within this much after t_kill (the daemon ran on meanwhile)
     d.wait(timeout=30)
     path = tmp_path / "killed" / "run.mcap"
     log = read_log(path)
     assert log.recovered and log.rig is not None and log.gains is not None
-    balanced = (log.ticks["state"] == "balancing").sum() / RATE
-    assert balanced > killed_after - 1.6, f"{balanced:.2f} s of balancing in the log, killed after {killed_after:.2f} s"
+    assert (log.ticks["state"] == "balancing").sum() > 1.0 * RATE, "seconds of balancing were recorded"
+    lost_s = (t_kill - int(log.tick_log_time[-1])) * 1e-9
+    assert -kill_s <= lost_s < KILL_LOSS_BOUND_S + waited_s + kill_s, (
+        f"the log lost the last {lost_s:.2f} s before the kill ({waited_s:.2f} s of run-queue wait)")
     counts = independent_mcap_counts(path)
     assert counts["tick_records"] == log.n_ticks, counts  # the tick batches, decoded by the independent reader
     # the JSON ticks (Foxglove's) follow their batch's chunk: the kill may fall between the two chunks' writes

@@ -1,12 +1,14 @@
 // A live-view client built on the official Foxglove library (@foxglove/ws-protocol, subprotocol
 // foxglove.websocket.v1): connect (retrying while the run starts), subscribe to the given topics and print, as one
-// JSON object, the negotiated subprotocol, the advertised topics and the messages received in `seconds` from the first.
+// JSON object, the negotiated subprotocol, the advertised topics and the messages received until their stamps span
+// `seconds` of the run's time (or the run ends): the run's clock, not how fast a loaded machine delivers them.
 // Usage: node foxglove_client.cjs ws://127.0.0.1:PORT SECONDS TOPIC...
 const { FoxgloveClient } = require("@foxglove/ws-protocol");
 const WebSocket = require("ws");
 
 const [url, seconds, ...topics] = process.argv.slice(2);
 const deadline = Date.now() + 60000;
+const span = BigInt(Math.round(Number(seconds) * 1e9));
 const out = { subprotocol: null, channels: [], messages: {}, errors: [] };
 for (const t of topics) out.messages[t] = [];
 
@@ -15,7 +17,7 @@ function connect() {
   const client = new FoxgloveClient({ ws });
   const subs = new Map();
   let opened = false;
-  let timer = null;
+  let first = null;
   client.on("open", () => { opened = true; out.subprotocol = ws.protocol; });
   client.on("error", (err) => {
     if (!opened && Date.now() < deadline) return; // the run is still starting: the close below retries
@@ -35,7 +37,8 @@ function connect() {
     const topic = subs.get(subscriptionId);
     const body = JSON.parse(new TextDecoder().decode(data));
     out.messages[topic].push([String(timestamp), String(Date.now()), body]);
-    if (timer === null) timer = setTimeout(() => { client.close(); finish(); }, Number(seconds) * 1000);
+    if (first === null) first = BigInt(timestamp);
+    if (BigInt(timestamp) - first >= span) { client.close(); finish(); }
   });
 }
 
