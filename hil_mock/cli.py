@@ -53,8 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pacing", choices=("realtime", "free", "lockstep"), help="default realtime")
     p.add_argument("--spin-us", type=float, metavar="US", help="longest busy-wait before a deadline (default 100)")
     p.add_argument("--priority", choices=("normal", "realtime"),
-                   help="realtime (default): in real-time pacing, SCHED_FIFO for the device thread if permitted, "
-                   "else nice -10")
+                   help="realtime (default): SCHED_FIFO for the device thread if permitted, else nice -10")
     p.add_argument("--firmware", choices=("python", "c", "board"),
                    help="device logic: c (default), the microcontroller's C core built for this machine; python; or "
                         "board, the flashed image (scripts/build_firmware) on the register-level STM32F401 model")

@@ -16,7 +16,7 @@ A mock TOML file (all tables optional)::
     substep_hz = 10000              # physics substep of the core simulator
     pacing = "realtime"             # realtime | free (as fast as possible) | lockstep (wait for each COMMAND)
     spin_us = 100                   # the longest busy-wait before a deadline (it covers the sleeps' steady overshoot)
-    priority = "realtime"           # real-time pacing: SCHED_FIFO for the device thread if permitted (else nice -10)
+    priority = "realtime"           # SCHED_FIFO for the device thread if permitted (else nice -10); or "normal"
     late_threshold_us = 250         # a tick starting later than this is counted late (default: period / 4)
     firmware = "c"                  # device logic: the microcontroller's C core built for this machine, or "python"
     plant = "compiled"              # the plant in C (furuta_rt/sim/csrc/plant.c), or "python": the reference simulator

@@ -404,9 +404,7 @@ class VirtualDevice:
     def run(self) -> None:
         """Serve until ``stop()`` or a disconnect fault (blocking)."""
         set_timer_slack()
-        # Real-time pacing only: free-running must not hog a core, and lockstep keeps no deadline — at SCHED_FIFO its
-        # every wake-up for a COMMAND costs more CPU and holds off the pty's kernel work on its CPU (slower, not faster).
-        if self.config.device.priority == "realtime" and self.pacing == "realtime":
+        if self.config.device.priority == "realtime" and self.pacing != "free":  # free-running must not hog a core
             self.priority = raise_priority()
         fw = self.firmware
         timing = self.timing
