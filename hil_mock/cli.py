@@ -197,9 +197,9 @@ def serve(args: argparse.Namespace) -> int:
             with contextlib.suppress(OSError):
                 link.unlink()
     stats = device.stats
-    print(stats.summary(), file=sys.stderr, flush=True)
-    if args.stats_json:
+    if args.stats_json:  # the file first: a launcher gone (its stderr pipe closed) must not cost the user the figures
         write_text(args.stats_json, json.dumps(stats.as_dict(), indent=2) + "\n", overwrite=args.force, flag="--stats-json")
+    print(stats.summary(), file=sys.stderr, flush=True)
     return 0
 
 

@@ -32,6 +32,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from furuta_rt.cpu_idle import hold_wakeup_latency
 from furuta_rt.errors import UserError
 from furuta_rt.model.rig import RigModel
 from hil_mock.c_firmware import make_firmware
@@ -404,8 +405,10 @@ class VirtualDevice:
     def run(self) -> None:
         """Serve until ``stop()`` or a disconnect fault (blocking)."""
         set_timer_slack()
+        qos = None
         if self.config.device.priority == "realtime" and self.pacing != "free":  # free-running must not hog a core
             self.priority = raise_priority()
+            qos, _ = hold_wakeup_latency(0)  # a device that keeps time answers at once; without it, as before
         fw = self.firmware
         timing = self.timing
         pc = time.perf_counter
@@ -469,6 +472,8 @@ class VirtualDevice:
                 self._read()
             fw.hangup()
             self._close()
+            if qos is not None:
+                os.close(qos)
             self._cpu_s = time.clock_gettime(self._cpu_clock) - self._cpu_start
             self._cpu_clock = None
 

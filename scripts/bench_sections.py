@@ -1472,11 +1472,17 @@ def main(argv: list[str] | None = None) -> int:
 
     claim_or_exit("scripts/bench", [("--json", args.json)], force=args.force)
     t_all = time.perf_counter()
+    from furuta_rt.cpu_idle import hold_wakeup_latency
+
+    _qos, qos_warning = hold_wakeup_latency(0)  # as the daemon and hil-mock hold it (and cyclictest): same machine state
     info = machine()
+    info["idle_cpus_wake_at_once"] = qos_warning is None
     print(f"scripts/bench{' --quick' if args.quick else ''} on {info['date']}: {info['cpus']} CPUs, load average "
           f"{' '.join(map(str, info['loadavg']))}, kernel {info['kernel']} (preempt {info.get('preempt', '?')}, "
           f"HZ {info.get('kernel_hz', '?')}{', under a hypervisor' if info.get('hypervisor') else ''}); "
-          f"{len(info['other_realtime_tasks'])} other real-time user processes running", flush=True)
+          f"{len(info['other_realtime_tasks'])} other real-time user processes running; "
+          + ("idle CPUs wake at once (PM QoS 0 µs, held by the bench, the daemon and hil-mock)" if qos_warning is None
+             else f"warning: {qos_warning}"), flush=True)
     results: dict[str, Any] = {"machine": info, "command": "scripts/bench" + (" --quick" if args.quick else "")}
     for name in names:
         t0 = time.perf_counter()

@@ -286,3 +286,26 @@ def test_launching_the_mock_loads_only_the_launcher_and_the_public_names_still_r
     )
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, check=True)
     assert out.stdout.splitlines() == ["[]", "module 'hil_mock' has no attribute 'no_such_name'"]
+
+
+def test_stats_json_is_written_when_the_launcher_is_gone(tmp_path):
+    """A launcher killed (its pipes closed, its --exit-with-fd end gone) still leaves hil-mock's --stats-json: the
+    file the user asked for is written before the summary goes to a stderr nobody reads any more."""
+    import os
+    import subprocess
+    import sys
+
+    stats = tmp_path / "stats.json"
+    watch_r, watch_w = os.pipe()
+    proc = subprocess.Popen([sys.executable, "-m", "hil_mock", "--pty", "--exit-with-fd", str(watch_r), "--rate", "500",
+                             "--stats-json", str(stats)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            pass_fds=(watch_r,))
+    os.close(watch_r)
+    assert proc.stdout is not None and proc.stderr is not None
+    assert proc.stdout.readline().strip()  # serving on its pty
+    proc.stdout.close()
+    proc.stderr.close()
+    os.close(watch_w)  # the launcher is gone
+    assert proc.wait(timeout=30) == 0
+    st = json.loads(stats.read_text())
+    assert st["rate_hz"] == 500 and st["handshakes"] == 0

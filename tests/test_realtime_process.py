@@ -5,11 +5,15 @@ is measured by scripts/bench's memory section, not here."""
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
 import time
 from pathlib import Path
 
 from test_reliability_harness import DaemonProcess, traceback_free
+
+from furuta_rt.cpu_idle import CPU_LATENCY_DEVICE, current_wakeup_latency_us
 
 
 def _mapped_files(pid: int) -> set[str]:
@@ -21,6 +25,14 @@ def _mapped_files(pid: int) -> set[str]:
     return files
 
 
+def _open_files(pid: int) -> set[str]:
+    out = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        with contextlib.suppress(OSError):  # closed since the listing
+            out.add(os.readlink(fd))
+    return out
+
+
 def _cmdline(pid: int) -> str:
     try:
         return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
@@ -28,7 +40,7 @@ def _cmdline(pid: int) -> str:
         return ""
 
 
-def test_the_control_process_holds_no_scipy_and_no_blas_threads(tmp_path: Path) -> None:
+def test_the_control_process_holds_no_scipy_and_no_blas_threads_and_keeps_idle_cpus_awake(tmp_path: Path) -> None:
     daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "60", "--log", str(tmp_path / "run.mcap")])
     try:
         daemon.wait_for_line("→ balancing")
@@ -36,6 +48,8 @@ def test_the_control_process_holds_no_scipy_and_no_blas_threads(tmp_path: Path) 
         mapped = _mapped_files(daemon.pid)
         threads = [Path(f"{task}/comm").read_text().strip() for task in Path(f"/proc/{daemon.pid}/task").iterdir()]
         children = [_cmdline(pid) for pid in daemon.children()]
+        qos_holders = [pid for pid in (daemon.pid, *daemon.children()) if CPU_LATENCY_DEVICE in _open_files(pid)]
+        bound_us = current_wakeup_latency_us()
         daemon.kill_group(signal.SIGINT)
         rc = daemon.wait()
     finally:
@@ -46,6 +60,12 @@ def test_the_control_process_holds_no_scipy_and_no_blas_threads(tmp_path: Path) 
     assert not heavy, heavy
     # the loop, the log queue's feeder, the logger's watcher: no OpenBLAS workers (one per core, a locked buffer each)
     assert len(threads) <= 3, threads
+    # idle CPUs wake at once while it runs: the control process and the real-time mock hold the PM QoS request
+    if os.access(CPU_LATENCY_DEVICE, os.W_OK):
+        assert daemon.pid in qos_holders and len(qos_holders) == 2 and bound_us == 0, (qos_holders, bound_us)
+        assert "idle CPUs wake at once (PM QoS 0 µs)" in daemon.stderr
+    else:
+        assert f"warning: {CPU_LATENCY_DEVICE} is not writable" in daemon.stderr
     spawned = [c for c in children if "spawn_main" in c]
     assert len(spawned) == 1 and sum("hil_mock" in c for c in children) == 1, \
         f"the logger and the mock run beside it, the design helper has ended: {children}"

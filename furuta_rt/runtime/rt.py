@@ -1,4 +1,5 @@
-"""Real-time setup of the control process: frozen GC, SCHED_FIFO, locked memory, CPU affinity.
+"""Real-time setup of the control process: frozen GC, SCHED_FIFO, locked memory, idle CPUs that wake at once, CPU
+affinity.
 
 Each step is attempted and, when the system does not permit it, turned into a warning naming the
 fix; none is ever a failure (the loop still runs, with more jitter).
@@ -11,9 +12,13 @@ import ctypes.util
 import gc
 import os
 
+from furuta_rt.cpu_idle import hold_wakeup_latency
+
 MCL_CURRENT = 1
 MCL_FUTURE = 2
 
+
+_HELD: list[int] = []  # the PM QoS request's descriptor: open for the life of the control process
 
 CONTROL_THREAD_STACK = 1 << 20  # bytes: a helper thread of the control process (queue feeder, watcher) needs little
 
@@ -92,6 +97,12 @@ def setup_realtime(enable: bool = True, priority: int = 50, cpu: int | None = No
         warnings.append(mem_warning)
     else:
         applied.append("memory locked")
+    held, idle_warning = hold_wakeup_latency(0)  # held until the process exits
+    if idle_warning:
+        warnings.append(idle_warning)
+    elif held is not None:
+        _HELD.append(held)
+        applied.append("idle CPUs wake at once (PM QoS 0 µs)")
     fifo_warning = set_fifo(priority)
     if fifo_warning:
         warnings.append(fifo_warning)
