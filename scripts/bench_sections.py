@@ -575,6 +575,18 @@ def _host_side(fd: int, other_fd: int, work_ns: int, after_ns: int, conn: Any) -
     os._exit(0)
 
 
+def _open_link(kind: str) -> tuple[int, int]:
+    """The device's and the host's ends of a bare link: a raw pseudo-terminal ('pty', the hil-mock link) or a
+    socketpair."""
+    if kind == "pty":
+        dev_fd, host_fd = os.openpty()
+        tty.setraw(dev_fd)
+        tty.setraw(host_fd)
+        return dev_fd, host_fd
+    a, b = socket.socketpair()
+    return a.detach(), b.detach()
+
+
 def probe(kind: str, rate: int, seconds: float, device_work_us: float = 0.0, host_work_us: float = 0.0,
           device_spin_us: float = 0.0, host_after_us: float = 0.0) -> dict[str, Any]:
     """kind: 'wake' (one thread), 'socketpair' or 'pty' (device + host processes). The device spins
@@ -586,13 +598,7 @@ def probe(kind: str, rate: int, seconds: float, device_work_us: float = 0.0, hos
     host = None
     dev_fd = None
     if kind != "wake":
-        if kind == "pty":
-            dev_fd, host_fd = os.openpty()
-            tty.setraw(host_fd)
-            tty.setraw(dev_fd)
-        else:
-            a, b = socket.socketpair()
-            dev_fd, host_fd = a.detach(), b.detach()
+        dev_fd, host_fd = _open_link(kind)
         os.set_blocking(dev_fd, False)
         host = ctx.Process(target=_host_side, args=(host_fd, dev_fd, round(host_work_us * 1000),
                                                     round(host_after_us * 1000), host_send))
@@ -774,13 +780,7 @@ def link_ceiling(kind: str, spin: bool, rate: int, seconds: float) -> dict[str, 
     over a pty or a socketpair, each side waiting in select or, with ``spin``, polling non-blocking reads (a
     spinning SCHED_FIFO side would starve the kernel's normal-priority tty work and never be answered); one round
     trip per device period, so the lockstep real-time factor of a device whose own work took no time."""
-    if kind == "pty":
-        dev_fd, host_fd = os.openpty()
-        tty.setraw(dev_fd)
-        tty.setraw(host_fd)
-    else:
-        a, b = socket.socketpair()
-        dev_fd, host_fd = a.detach(), b.detach()
+    dev_fd, host_fd = _open_link(kind)
     os.set_blocking(dev_fd, False)
     os.set_blocking(host_fd, False)
     pid = os.fork()
@@ -823,8 +823,9 @@ def bench_mock(quick: bool) -> dict[str, Any]:
     rtf_lock, lock_host, lock_dev = bm.pty_factor(eff, rate, "lockstep", seconds)
     after = bm.pty_ceiling(rate, seconds)
     ceiling = {k: (before[k] + after[k]) / 2 for k in ("real_time_factor", "round_trip_us", "device_cpu_us")}
-    links = {f"{kind}_{'spinning' if spin else 'blocking'}": link_ceiling(kind, spin, rate, seconds)
-             for kind in ("pty", "socketpair") for spin in (False, True)}
+    links = {"pty_blocking": bm.pty_ceiling(rate, seconds, "normal"),  # bench_mock's bare pair at normal priority
+             **{f"{kind}_{'spinning' if spin else 'blocking'}": link_ceiling(kind, spin, rate, seconds)
+                for kind, spin in (("pty", True), ("socketpair", False), ("socketpair", True))}}
     _, rt_host, rt_dev = bm.pty_factor(eff, rate, "realtime", seconds)
     _, _, ref_rt_dev = bm.pty_factor(eff, rate, "realtime", seconds, ("--firmware", "python", "--plant", "python"))
     period_us = 1e6 / rate
