@@ -98,8 +98,10 @@ def check_way_out(how: str, after_batches: int = 8) -> tuple[list[str], str]:
         # the link timeout only where the link is lost on purpose: the device is a thread of this process, which a
         # loaded machine stalls for half a second now and then (a link loss the other ways out did not ask for)
         link_timeout = 0.5 if how == "link loss" else 10.0
+        # the handshake drops the SAMPLE the device sent before the CONFIG (hardware.SerialHardware.handshake), so
+        # the first one the host reads comes after the device's 10-s wait for that answer: the host must wait longer
         loop = ControlLoop(hw, Controller.from_rig(rig, gains=gains), Supervisor(lim),
-                           LoopSettings(rate_hz=RATE, duration=30.0, link_timeout_s=link_timeout, first_sample_timeout=10.0),
+                           LoopSettings(rate_hz=RATE, duration=30.0, link_timeout_s=link_timeout, first_sample_timeout=30.0),
                            full_scale=info.full_scale, calibration=info.calibration, log=sink)
         if how == "operator stop":
             sink.put_nowait = _after_batches(sink, after_batches, lambda: loop.request_stop("SIGINT"))  # type: ignore[method-assign]
