@@ -9,6 +9,10 @@ sensor path, the core's tick, the frames out and the plant's substeps, one call;
 host sent, the simulator's noise draws in blocks and the actuator's shaping as a table of every COMMAND count
 (Actuator.torque_terms, the one definition), and writes the frames out. With a plant plant.c does not cover, the
 Python simulator is sampled and advanced around the same calls. The C never calls back into Python.
+
+In lockstep the C also serves the common round on the pty itself (``serve_lockstep``: tick, write, plant, wait for
+the COMMAND, read it — no Python between a COMMAND's arrival and the next SAMPLE) and hands the loop back to
+hil_mock.device wherever Python acts: faults, a new session, the noise block, a new actuator count, the unusual I/O.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ OUT_FRAMES = 128  # device.c HIL_OUT_FRAMES
 NOISE_BLOCK = 4096  # noise draws handed to device.c at a time
 _STREAMING, _ANSWERED, _NEW_SESSION, _NOISE_LOW, _FRAMES, _NO_NOISE, _SHAPE = 1, 2, 4, 8, 16, 32, 64  # device.c's
 _SLOW = _NEW_SESSION | _NOISE_LOW | _FRAMES | _NO_NOISE | _SHAPE
+AT_TOP, AFTER_WRITE, AWAITING = 0, 1, 2  # device.c hil_lockstep's phases
 _DP = ctypes.POINTER(ctypes.c_double)
 STATE_FIELDS = (
     "clock_ns", "period_ns", "rate_hz", "watchdog_ms", "streaming", "enabled", "answered", "any_applied",
@@ -138,6 +143,21 @@ class HilDevice(ctypes.Structure):
     )
 
 
+class LockstepServe(ctypes.Structure):
+    """hil_mock/csrc/device.c ``hil_serve_t``: hil_lockstep's orders and what it did (see there)."""
+
+    _fields_ = (
+        ("fd", ctypes.c_int32), ("max_rounds", ctypes.c_uint32), ("interrupt", ctypes.c_int32),
+        ("phase", ctypes.c_int32), ("event_substeps", ctypes.c_int64), ("timeout_ns", ctypes.c_int64),
+        ("drained", ctypes.c_int32), ("realtime", ctypes.c_int32), ("error", ctypes.c_int32),
+        ("status", ctypes.c_uint32), ("rounds", ctypes.c_uint32), ("timed_rounds", ctypes.c_uint32),
+        ("reads", ctypes.c_uint32), ("writes", ctypes.c_uint32), ("selects", ctypes.c_uint32),
+        ("written", ctypes.c_uint32),
+        ("round_start_ns", ctypes.c_int64), ("round_clock_ns", ctypes.c_int64), ("until_ns", ctypes.c_int64),
+        ("sum_work_s", ctypes.c_double), ("worst_work_s", ctypes.c_double),
+    )
+
+
 @functools.cache
 def load_device_library() -> ctypes.CDLL:
     """hil_mock's device in C: the firmware core, its host HAL, plant.c and device.c, one library."""
@@ -147,13 +167,15 @@ def load_device_library() -> ctypes.CDLL:
     dev = ctypes.POINTER(HilDevice)
     u32 = ctypes.c_uint32
     for name, args in (("hil_rx", (dev, ctypes.c_char_p, ctypes.c_size_t)), ("hil_tick", (dev, ctypes.c_int)),
-                       ("hil_advance", (dev,)), ("hil_skip", (dev, u32)), ("hil_poll", (dev,))):
+                       ("hil_advance", (dev,)), ("hil_skip", (dev, u32)), ("hil_poll", (dev,)),
+                       ("hil_lockstep", (dev, ctypes.POINTER(LockstepServe)))):
         fn = getattr(lib, name)
         fn.argtypes = args
         fn.restype = u32
-    lib.hil_device_size.restype = ctypes.c_size_t
-    if lib.hil_device_size() != ctypes.sizeof(HilDevice):
-        raise RuntimeError("hil_mock/csrc/device.c: hil_device_t and c_firmware.HilDevice differ in size")
+    for size, struct in ((lib.hil_device_size, HilDevice), (lib.hil_serve_size, LockstepServe)):
+        size.restype = ctypes.c_size_t
+        if size() != ctypes.sizeof(struct):
+            raise RuntimeError(f"hil_mock/csrc/device.c and c_firmware.{struct.__name__} differ in size")
     _declare_core(lib)
     return lib
 
@@ -255,6 +277,8 @@ class CFirmware(Firmware):
         self._dref = ctypes.byref(d)
         self._out = ctypes.addressof(d.out)
         self._bits = 0
+        self._serve = LockstepServe()
+        self._serve_ref = ctypes.byref(self._serve)
         self._after(lib.hil_poll(self._dref))
 
     def _attach_plant(self, d: HilDevice, cal: Calibration) -> None:
@@ -346,6 +370,28 @@ class CFirmware(Firmware):
 
     def hello_ack(self, nonce: int) -> HelloAck:
         raise NotImplementedError("the C core builds its own HELLO_ACK: decode it from tx")
+
+    # ------------------------------------------------------------ lockstep rounds in C
+    def serve_lockstep(self, fd: int, max_rounds: int, event_substeps: int, timeout_s: float
+                       ) -> tuple[LockstepServe, bytes]:
+        """Lockstep rounds on ``fd`` (device.c hil_lockstep) until the loop must act, ``max_rounds`` of them, or the
+        plant reaching ``event_substeps``; the compiled plant only. Returns what the rounds did and, when the pty
+        took only part of a tick's frames, the bytes it left (the caller's backlog)."""
+        s = self._serve
+        s.fd, s.max_rounds, s.event_substeps, s.timeout_ns = fd, max_rounds, event_substeps, round(timeout_s * 1e9)
+        self._lib.hil_lockstep(self._dref, self._serve_ref)
+        rest = b""
+        if s.phase == AFTER_WRITE and s.written < self._d.out_len:
+            d = self._d
+            rest = ctypes.string_at(self._out + s.written, d.out_len - s.written)
+            d.out_len = d.out_frames = 0
+            s.status &= ~_FRAMES
+        self._after(s.status)
+        return s, rest
+
+    def interrupt_lockstep(self, on: bool = True) -> None:
+        """Ask running lockstep rounds to return at their next check (any thread); ``on=False`` clears it."""
+        self._serve.interrupt = int(on)
 
     # ------------------------------------------------------------ Firmware's interface
     def receive(self, data: bytes) -> None:

@@ -14,6 +14,12 @@ Pacing "free" runs streaming ticks back to back (benchmarks); "lockstep" starts 
 soon as the COMMAND answering the previous SAMPLE arrived (deterministic runs on a loaded machine, a
 device slower than real time included; a SAMPLE left unanswered for LOCKSTEP_TIMEOUT_S is a late
 command and the device ticks on, still in lockstep). Idle, both pace in real time. Timing statistics cover streaming ticks only.
+
+In lockstep the default device (C firmware core, compiled plant) serves the common round — tick, write, plant,
+wait for the COMMAND, read it — in C (hil_mock.c_firmware.CFirmware.serve_lockstep), round for round what this
+loop does, and this loop takes over wherever it has something to do: a fault due or requested, a stop, a signal,
+link faults, a hang-up, a partial write, a new session, the noise block, a new actuator count (``compiled_ticks``
+counts the ticks the C served).
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ from typing import Any
 from furuta_rt.cpu_idle import hold_wakeup_latency
 from furuta_rt.errors import UserError
 from furuta_rt.model.rig import RigModel
-from hil_mock.c_firmware import make_firmware
+from hil_mock.c_firmware import AFTER_WRITE, AWAITING, CFirmware, make_firmware
 from hil_mock.config import MockConfig
 from hil_mock.faults import FaultEvent, LinkFaults
 from hil_mock.ptyport import open_raw_pty
@@ -49,7 +55,9 @@ as the firmware does for a late command). A host may leave a SAMPLE unanswered (
 the first one, which shares a read with the HELLO_ACK); the wait stays well inside the host's link timeout (0.5 s by
 default), so such a SAMPLE costs one late command, never a link loss."""
 IN_PROCESS_SWITCH_INTERVAL_S = 2e-4
-READ_BYTES = 4096
+READ_BYTES = 4096  # hil_mock/csrc/device.c HIL_READ_BYTES
+COMPILED_ROUNDS = 256
+"""Lockstep rounds the C serves before it hands the loop back (its counters then reach ``stats``): ~10 ms at 25x."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -98,6 +106,7 @@ class DeviceStats:
     friction_steps: int = 0
     arm_coulomb: float = 0.0  # the arm's Coulomb level at the end (after any friction_step), N m
     pushes: int = 0
+    compiled_ticks: int = 0  # ticks served by the compiled lockstep round (CFirmware.serve_lockstep)
 
     @property
     def realtime_factor(self) -> float:
@@ -180,6 +189,9 @@ class VirtualDevice:
         self._t_end: float | None = None
         self._cpu_clock: int | None = None
         self._cpu_start = self._cpu_s = 0.0
+        fw = self.firmware
+        self._compiled = fw if isinstance(fw, CFirmware) and fw.fused and self.pacing == "lockstep" else None
+        self.compiled_ticks = 0
         self._fd, self.port = open_raw_pty()
         self._poller = select.poll()  # registered once: no fd sets built per wait, as select.select does
         self._poller.register(self._fd, select.POLLIN)
@@ -200,6 +212,7 @@ class VirtualDevice:
     def stop(self, timeout: float = 5.0) -> None:
         """Stop serving, zero the output, close the pty (the host sees a hang-up)."""
         self._stop.set()
+        self._wake()
         thread = self._thread
         if thread is not None and thread is not threading.current_thread():
             thread.join(timeout)
@@ -212,6 +225,16 @@ class VirtualDevice:
     def request_stop(self) -> None:
         """Ask ``run()`` to return after the current tick (safe from a signal handler)."""
         self._stop.set()
+        self._wake()
+
+    def _wake(self) -> None:
+        """Hand the loop back from the compiled lockstep rounds: a stop or a fault was requested."""
+        if self._compiled is not None:
+            self._compiled.interrupt_lockstep()
+
+    def _act(self, action: Callable[[], None]) -> None:
+        self._actions.put(action)
+        self._wake()
 
     def __enter__(self) -> VirtualDevice:
         return self.start()
@@ -234,23 +257,23 @@ class VirtualDevice:
     # ------------------------------------------------------------ faults (any thread)
     def stall(self, seconds: float) -> None:
         """The firmware hangs for ``seconds``: no ticks, reads or writes; the plant runs on, output held."""
-        self._actions.put(lambda: self._do_stall(seconds))
+        self._act(lambda: self._do_stall(seconds))
 
     def reset(self) -> None:
         """Reboot: output zero, faults and configuration cleared, idle until a new HELLO (seq from 0)."""
-        self._actions.put(self._do_reset)
+        self._act(self._do_reset)
 
     def disconnect(self) -> None:
         """Close the pty master: the host's port reads EOF/fails; the device stops serving."""
-        self._actions.put(self._do_disconnect)
+        self._act(self._do_disconnect)
 
     def mute(self, seconds: float) -> None:
         """Lose every device→host byte for ``seconds``."""
-        self._actions.put(lambda: self._timed_flag("muted", seconds))
+        self._act(lambda: self._timed_flag("muted", seconds))
 
     def deafen(self, seconds: float) -> None:
         """Lose every host→device byte for ``seconds``."""
-        self._actions.put(lambda: self._timed_flag("deafened", seconds))
+        self._act(lambda: self._timed_flag("deafened", seconds))
 
     def push(self, theta_dot_jump: float = 0.0) -> None:
         """An impulse on the pendulum: θ̇ jumps by ``theta_dot_jump`` rad/s (0: 2·√(ε/α), a full turn's energy)."""
@@ -429,6 +452,9 @@ class VirtualDevice:
                     self._run_due_events()
                 if self._fd is None:
                     break
+                if drained and not realtime and self._compiled is not None and self._compiled_round_ready():
+                    drained, realtime, t_base = self._serve_compiled(t_base)
+                    continue
                 streaming = fw.streaming
                 if realtime:
                     deadline = t_base + fw.clock_ns * 1e-9
@@ -457,16 +483,7 @@ class VirtualDevice:
                 streaming = fw.streaming
                 fw.tick(advance=False)
                 self._write(now)  # the SAMPLE leaves at the tick, as the firmware's DMA sends it
-                fw.advance_plant()  # then the simulator's compute: not in the link's delay
-                if streaming:
-                    timing.record(lateness, pc() - now)
-                if self.pacing == "realtime" or not fw.streaming or not self.connected:
-                    realtime = True
-                elif self.pacing == "free":
-                    realtime = False
-                else:  # lockstep: the next tick when the COMMAND answering the SAMPLE just sent arrived (or waited in vain)
-                    drained = self._await_answer(pc() + LOCKSTEP_TIMEOUT_S) and self._drained
-                    realtime = False
+                drained, realtime = self._end_tick(now, lateness, streaming)
         finally:
             with contextlib.suppress(OSError):  # what the host sent last (its STOP) reaches the firmware before it stops
                 self._read()
@@ -477,9 +494,77 @@ class VirtualDevice:
             self._cpu_s = time.clock_gettime(self._cpu_clock) - self._cpu_start
             self._cpu_clock = None
 
-    def _await_answer(self, until: float) -> bool:
+    def _end_tick(self, now: float, lateness: float, streaming: bool) -> tuple[bool, bool]:
+        """The tick after its frames went out: the plant advanced, the tick timed, the next one's pacing; returns
+        (the pty drained, pace in real time)."""
         fw = self.firmware
-        self._drained = False
+        fw.advance_plant()  # the simulator's compute: not in the link's delay
+        if streaming:
+            self.timing.record(lateness, time.perf_counter() - now)
+        if self.pacing == "realtime" or not fw.streaming or not self.connected:
+            return False, True
+        if self.pacing == "free":
+            return False, False
+        # lockstep: the next tick when the COMMAND answering the SAMPLE just sent arrived (or waited in vain)
+        return self._await_answer(time.perf_counter() + LOCKSTEP_TIMEOUT_S) and self._drained, False
+
+    def _compiled_round_ready(self) -> bool:
+        """The loop's next passes are the compiled lockstep round's to serve: streaming, connected, nothing held back
+        (link faults, the delay line, a backlog, frames not yet written), no fault due at the next tick, no stop or
+        fault requested since the top."""
+        fw = self._compiled
+        assert fw is not None
+        if fw.tx or self._backlog or self._delayed or self.delay_s or self.link.active or not self.connected:
+            return False
+        if not fw.streaming or fw.substeps_done >= self._fault_substep():
+            return False
+        fw.interrupt_lockstep(False)  # cleared before the look at the requests: none is missed
+        return not self._stop.is_set() and self._actions.empty()
+
+    def _fault_substep(self) -> int:
+        """The first plant substep at which the next scheduled fault is due (``plant_time >= at``, as
+        ``_run_due_events`` decides it); far away without one."""
+        if not self._events:
+            return 1 << 62
+        hz, at = self.firmware.substep_hz, self._events[0].at
+        n = math.ceil(at * hz)
+        while n > 0 and (n - 1) / hz >= at:
+            n -= 1
+        while n / hz < at:
+            n += 1
+        return n
+
+    def _serve_compiled(self, t_base: float) -> tuple[bool, bool, float]:
+        """Lockstep rounds in C (CFirmware.serve_lockstep) up to the next scheduled fault; then this loop's pass from
+        where the C left it. Returns the loop's (drained, realtime, t_base)."""
+        fw = self._compiled
+        assert fw is not None and self._fd is not None
+        s, rest = fw.serve_lockstep(self._fd, COMPILED_ROUNDS, self._fault_substep(), LOCKSTEP_TIMEOUT_S)
+        self.compiled_ticks += s.rounds
+        self.pty_reads += s.reads
+        self.pty_writes += s.writes
+        self.pty_selects += s.selects
+        self.timing.record_lockstep(s.timed_rounds, s.sum_work_s, s.worst_work_s)
+        pc = time.perf_counter
+        mono = time.clock_gettime_ns(time.CLOCK_MONOTONIC)  # the C's clock (perf_counter's may have another origin)
+        now = pc() - (mono - s.round_start_ns) * 1e-9  # the last tick's start
+        if s.rounds:
+            t_base = now - s.round_clock_ns * 1e-9
+        if s.phase == AFTER_WRITE:  # the tick's frames went out (all or part); the loop's pass goes on from there
+            if s.error:
+                raise OSError(s.error, os.strerror(s.error))
+            if rest:
+                self._queue_wire(rest)
+            drained, realtime = self._end_tick(now, 0.0, True)  # the C enters and goes on only while streaming
+            return drained, realtime, t_base
+        if s.phase == AWAITING:  # the wait for the COMMAND, from where the C left it
+            until = pc() + (s.until_ns - mono) * 1e-9
+            return self._await_answer(until, bool(s.drained)) and self._drained, False, t_base
+        return bool(s.drained), bool(s.realtime), t_base
+
+    def _await_answer(self, until: float, drained: bool = False) -> bool:
+        fw = self.firmware
+        self._drained = drained
         while not fw.answered:
             if self._stop.is_set() or self._fd is None:
                 return True
@@ -553,6 +638,7 @@ class VirtualDevice:
             friction_steps=self.friction_steps,
             arm_coulomb=fw.model.arm_friction.dry.sliding_level if fw.model.arm_friction.dry is not None else 0.0,
             pushes=self.pushes,
+            compiled_ticks=self.compiled_ticks,
             pty_reads=self.pty_reads,
             pty_writes=self.pty_writes,
             pty_selects=self.pty_selects,

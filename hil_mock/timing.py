@@ -129,6 +129,15 @@ class TickTiming:
             self.late_ticks += 1
         self.histogram[bisect_right(LATENESS_BUCKETS_US, lateness * 1e6)] += 1
 
+    def record_lockstep(self, ticks: int, sum_work: float, worst_work: float) -> None:
+        """``ticks`` lockstep ticks at once (each on time: lateness 0), their work summed and its worst."""
+        if ticks:
+            self.ticks += ticks
+            self.sum_work_s += sum_work
+            if worst_work > self.worst_work_s:
+                self.worst_work_s = worst_work
+            self.histogram[bisect_right(LATENESS_BUCKETS_US, 0.0)] += ticks
+
     def percentile_us(self, q: float) -> float:
         """Upper edge (µs) of the histogram bucket holding the q-quantile of lateness (inf if beyond)."""
         if not self.ticks:

@@ -13,11 +13,22 @@
  *
  * Without a compiled plant (params NULL: a model plant.c does not cover) the caller samples and integrates its
  * plant itself: it sets the readings before hil_tick and runs `pending` substeps after it.
+ *
+ * hil_lockstep serves the common lockstep round on the pseudo-terminal itself (tick, write, plant, wait for the
+ * COMMAND, read it), as hil_mock.device.VirtualDevice.run's loop does round for round, and returns where that loop
+ * has something to do (a fault due, a stop or fault request, a signal, a hang-up, a partial write, a new session,
+ * the noise block low, an actuator table entry missing, the end of the session, the round budget).
  */
+#define _POSIX_C_SOURCE 200809L
+
+#include <errno.h>
 #include <math.h>
+#include <poll.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <string.h>
+#include <time.h>
+#include <unistd.h>
 
 #include "fw_core.h"
 #include "plant.h"
@@ -79,7 +90,41 @@ typedef struct {
     uint8_t out[HIL_OUT_BYTES];
 } hil_device_t;
 
+/* hil_lockstep: where the caller's loop goes on (VirtualDevice.run) */
+enum {
+    HIL_AT_TOP = 0,      /* before the next tick: the loop's top (stop, fault requests, faults due) */
+    HIL_AFTER_WRITE = 1, /* the tick's frames went out (`written` of out's bytes; the rest is the caller's to queue),
+                          * the plant not advanced yet (HIL_SHAPE, or the pty took only part of the frames) */
+    HIL_AWAITING = 2,    /* waiting for the COMMAND until `until_ns` (a request, a signal, a hang-up, an error) */
+};
+#define HIL_STICKY (HIL_NEW_SESSION | HIL_NOISE_LOW | HIL_NO_NOISE) /* the caller's to handle at the next top */
+#define HIL_READ_BYTES 4096 /* hil_mock.device.READ_BYTES */
+#define HIL_WAIT_SLICE_NS 50000000LL /* the longest single poll: the stop request is seen at least this often */
+
+typedef struct {
+    int32_t fd;                  /* the pty master (non-blocking) */
+    uint32_t max_rounds;         /* return at the top after this many rounds */
+    volatile int32_t interrupt;  /* set by another thread (a stop or a fault requested): return at the next check */
+    int32_t phase;               /* out: HIL_AT_TOP, HIL_AFTER_WRITE or HIL_AWAITING */
+    int64_t event_substeps;      /* return at the top once the plant reached this substep (a scheduled fault is due) */
+    int64_t timeout_ns;          /* how long a SAMPLE waits for its COMMAND (LOCKSTEP_TIMEOUT_S) */
+    /* out */
+    int32_t drained;             /* AT_TOP: the last read emptied the pty (no read before the next tick); AWAITING:
+                                  * a read of this wait ended short */
+    int32_t realtime;            /* AT_TOP: the session ended, the caller paces in real time */
+    int32_t error;               /* errno of a failed write the caller must raise (0: none) */
+    uint32_t status;             /* the last call's bits, HIL_STICKY bits of every call since entry */
+    uint32_t rounds, timed_rounds;  /* ticks, and those that began streaming (timed as the caller times them) */
+    uint32_t reads, writes, selects;  /* system calls on the pty */
+    uint32_t written;            /* AFTER_WRITE: bytes of out the pty took */
+    int64_t round_start_ns, round_clock_ns;  /* the last tick: its start (CLOCK_MONOTONIC), the device clock then */
+    int64_t until_ns;            /* AWAITING: when the wait gives up (CLOCK_MONOTONIC) */
+    double sum_work_s, worst_work_s;  /* timed ticks: start to the plant advanced */
+} hil_serve_t;
+
 size_t hil_device_size(void);
+size_t hil_serve_size(void);
+uint32_t hil_lockstep(hil_device_t *d, hil_serve_t *s);
 uint32_t hil_rx(hil_device_t *d, const uint8_t *data, size_t len);
 uint32_t hil_tick(hil_device_t *d, int advance);
 uint32_t hil_advance(hil_device_t *d);
@@ -87,6 +132,7 @@ uint32_t hil_skip(hil_device_t *d, uint32_t periods);
 uint32_t hil_poll(hil_device_t *d);
 
 size_t hil_device_size(void) { return sizeof(hil_device_t); }
+size_t hil_serve_size(void) { return sizeof(hil_serve_t); }
 
 /* One quantiser reading: the nearest level, ties up (sensors.count_of). */
 static double count_of(double x, double step) { return floor(x / step + 0.5); }
@@ -245,3 +291,135 @@ uint32_t hil_skip(hil_device_t *d, uint32_t periods)
 /* After a call made on the core directly (host_hangup, host_reboot, ...). */
 uint32_t hil_poll(hil_device_t *d) { return finish(d, 0u); }
 
+
+static int64_t monotonic_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000000LL + ts.tv_nsec;
+}
+
+static uint32_t leave(hil_device_t *d, hil_serve_t *s, int32_t phase, uint32_t status, uint32_t sticky)
+{
+    s->phase = phase;
+    s->status = (status & ~(uint32_t)HIL_FRAMES) | sticky | (d->out_frames ? HIL_FRAMES : 0u);
+    return (uint32_t)phase;
+}
+
+/* VirtualDevice._read during the wait: non-blocking reads into the core until one ends short (the pty emptied) or
+ * finds nothing; 0 when the caller must take over (a hang-up's EIO, an error: its own read sees it again). */
+static int read_all(hil_device_t *d, hil_serve_t *s, uint32_t *status, uint32_t *sticky, int *drained)
+{
+    uint8_t buf[HIL_READ_BYTES];
+    for (;;) {
+        s->reads++;
+        ssize_t n = read(s->fd, buf, sizeof buf);
+        if (n < 0) {
+            return errno == EAGAIN || errno == EWOULDBLOCK;
+        }
+        if (n == 0) {
+            return 1;
+        }
+        *status = hil_rx(d, buf, (size_t)n);
+        *sticky |= *status & HIL_STICKY;
+        if (n < HIL_READ_BYTES) {
+            *drained = 1;
+            return 1;
+        }
+    }
+}
+
+/* Lockstep rounds, each as one pass of VirtualDevice.run's loop with pacing "lockstep", entered at its top with the
+ * pty drained, streaming, connected, no frames held back by a link fault, the delay line or a backlog:
+ *   tick (SAMPLE out) -> write -> plant advanced -> timed -> wait for the COMMAND answering it (poll, read, rx).
+ * Returns the phase the caller resumes at (hil_serve_t.phase), having counted what its loop counts. */
+uint32_t hil_lockstep(hil_device_t *d, hil_serve_t *s)
+{
+    uint32_t status = 0u, sticky = 0u;
+    int drained = 1;
+    s->rounds = s->timed_rounds = s->reads = s->writes = s->selects = 0u;
+    s->written = 0u;
+    s->error = 0;
+    s->drained = 0;
+    s->realtime = 0;
+    s->sum_work_s = s->worst_work_s = 0.0;
+    struct pollfd pfd = {s->fd, POLLIN, 0};
+    for (;;) {
+        /* the loop's top */
+        if (s->interrupt || !drained || sticky || s->rounds >= s->max_rounds || d->substeps_done >= s->event_substeps) {
+            s->drained = drained;
+            return leave(d, s, HIL_AT_TOP, status, sticky);
+        }
+        int64_t start = monotonic_ns();
+        int timed = host_core(d->fw)->streaming;
+        s->round_start_ns = start;
+        s->round_clock_ns = (int64_t)d->clock_ns;
+        status = hil_tick(d, 0);
+        sticky |= status & HIL_STICKY;
+        s->rounds++;
+        if (d->out_len) { /* the SAMPLE leaves at the tick */
+            s->writes++;
+            ssize_t n = write(s->fd, d->out, d->out_len);
+            if (n < 0) {
+                if (errno == EAGAIN || errno == EWOULDBLOCK) {
+                    n = 0;
+                } else if (errno == EIO) { /* no host has the port open: the frames are lost, as the caller's */
+                    n = (ssize_t)d->out_len;
+                } else {
+                    s->error = errno;
+                    s->written = 0u;
+                    return leave(d, s, HIL_AFTER_WRITE, status, sticky);
+                }
+            }
+            if ((uint32_t)n < d->out_len) {
+                s->written = (uint32_t)n;
+                return leave(d, s, HIL_AFTER_WRITE, status, sticky);
+            }
+            d->out_len = d->out_frames = 0u;
+        }
+        status = hil_advance(d);
+        sticky |= status & HIL_STICKY;
+        if (status & HIL_SHAPE) {
+            s->written = 0u;
+            return leave(d, s, HIL_AFTER_WRITE, status, sticky);
+        }
+        if (timed) {
+            double work = (double)(monotonic_ns() - start) * 1e-9;
+            s->timed_rounds++;
+            s->sum_work_s += work;
+            if (work > s->worst_work_s) {
+                s->worst_work_s = work;
+            }
+        }
+        if (!host_core(d->fw)->streaming) { /* the session ended: real-time pacing from here */
+            s->realtime = 1;
+            s->drained = 0;
+            return leave(d, s, HIL_AT_TOP, status, sticky);
+        }
+        /* VirtualDevice._await_answer */
+        int64_t until = monotonic_ns() + s->timeout_ns;
+        drained = 0;
+        while (!host_core(d->fw)->answered) {
+            int64_t remaining = until - monotonic_ns();
+            if (s->interrupt) {
+                s->until_ns = until;
+                s->drained = drained;
+                return leave(d, s, HIL_AWAITING, status, sticky);
+            }
+            if (remaining <= 0) { /* a late command: the next tick reads first */
+                s->drained = 0;
+                return leave(d, s, HIL_AT_TOP, status, sticky);
+            }
+            if (remaining > HIL_WAIT_SLICE_NS) {
+                remaining = HIL_WAIT_SLICE_NS;
+            }
+            s->selects++;
+            int ready = poll(&pfd, 1, (int)((remaining + 999999) / 1000000)); /* milliseconds, rounded up */
+            if (ready < 0 || (ready > 0 && !read_all(d, s, &status, &sticky, &drained))) {
+                s->until_ns = until; /* a signal (the caller runs its handlers), a hang-up or an error: its wait */
+                s->drained = drained;
+                return leave(d, s, HIL_AWAITING, status, sticky);
+            }
+        }
+    }
+}

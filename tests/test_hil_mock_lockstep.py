@@ -1,0 +1,158 @@
+"""hil-mock's compiled lockstep round (hil_mock/csrc/device.c hil_lockstep) against the reference device, over a pty.
+
+In lockstep the default device (C firmware core, compiled plant) serves its common round in C: tick, write, plant,
+wait for the COMMAND, read it. The reference is the Python firmware with the reference simulator, served by
+hil_mock.device's Python loop. Lockstep is deterministic in device time, so a scripted host over a real pty must get
+the same SAMPLEs from both, field for field at every tick (t_us counted from the first SAMPLE: the device clock
+runs in real time until the first HELLO), and both devices must count the same — through everything that hands
+the loop back to Python: a new actuator count (9 of them), the noise block handed over (2 draws a tick, 4096 a
+block), a push, a stall, a friction step, the end of a session and a new one started by STOP+HELLO in one write.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import threading
+import time
+
+import pytest
+import serial
+
+from firmware_protocol import CommandFlags, Sample, Stop, encode, encode_command, make_hello, try_decode_frame
+from hil_mock.config import build_config
+from hil_mock.device import VirtualDevice
+
+EFFECTS = ["arm_coulomb.Fc=0.02", "arm_stiction.Fs=0.03", "arm_viscous.Fv=0.002"]
+FAULTS = ["push@0.4:2.5", "stall@0.9:20ms", "friction_step@1.5:Fc=0.01"]
+SESSIONS = (2300, 400)  # SAMPLEs answered in each session (the first crosses the noise block's hand-over)
+SAME_STATS = ("ticks", "samples_sent", "late_ticks", "commands_rx", "commands_applied", "commands_discarded",
+              "watchdog_trips", "crc_errors", "frame_errors", "frames_rx", "status_sent", "handshakes",
+              "handshakes_refused", "hangups", "resets", "stalls", "tx_frames_dropped", "friction_steps",
+              "arm_coulomb", "pushes")
+
+
+def counts(seq: int) -> int:
+    """The host's answer to SAMPLE ``seq``: 9 levels in turn, a new one every 37 ticks."""
+    return 700 * ((seq // 37) % 9 - 4)
+
+
+def scripted_host(ser: serial.Serial) -> list[tuple[int, ...]]:
+    """Each session: a HELLO, every SAMPLE answered at once, the last one with STOP (and the next session's HELLO in
+    the same write). Returns every SAMPLE's fields, t_us from the first SAMPLE."""
+    fd = ser.fileno()
+    samples: list[tuple[int, ...]] = []
+    hellos = [make_hello() for _ in SESSIONS]
+    ser.write(b"\0" + encode(hellos[0]))
+    end = time.monotonic() + 60.0
+    tail = b""
+    for k, n in enumerate(SESSIONS):
+        got = 0
+        while got < n:
+            assert time.monotonic() < end, f"session {k}: {got} of {n} SAMPLEs"
+            if not select.select([fd], [], [], 1.0)[0]:
+                continue
+            *frames, tail = (tail + os.read(fd, 65536)).split(b"\0")
+            for frame in frames:
+                m = try_decode_frame(frame) if frame else None
+                if type(m) is not Sample:
+                    continue
+                samples.append((m.seq, m.t_us, m.theta_adc, m.theta_dot_adc, m.phi_count, m.status))
+                got += 1
+                if got < n:
+                    os.write(fd, encode_command(hellos[k].nonce, m.seq, counts(m.seq), CommandFlags.ENABLE))
+                else:  # the session ends; the next one starts in the same write
+                    os.write(fd, encode(Stop(0)) + (encode(hellos[k + 1]) if k + 1 < len(SESSIONS) else b""))
+                    break
+    time.sleep(0.3)  # the device reads the last STOP, waits out its COMMAND, goes idle
+    t0 = samples[0][1]
+    return [(s[0], s[1] - t0, *s[2:]) for s in samples]
+
+
+def serve(device: dict[str, object]) -> tuple[list[tuple[int, ...]], dict[str, object], VirtualDevice]:
+    cfg = build_config(effects=EFFECTS, faults=FAULTS,
+                       device={"rate_hz": 1000, "pacing": "lockstep", "priority": "normal", "seed": 3, **device})
+    with VirtualDevice(cfg) as dev, serial.Serial(dev.port, timeout=0) as ser:
+        samples = scripted_host(ser)
+        dev.stop()
+    return samples, dev.stats.as_dict(), dev
+
+
+def test_compiled_lockstep_round_sends_the_reference_devices_samples_over_a_pty() -> None:
+    fast, fast_stats, dev = serve({})
+    ref, ref_stats, _ = serve({"firmware": "python", "plant": "python"})
+    assert len(fast) == len(ref) == sum(SESSIONS)
+    for k, (a, b) in enumerate(zip(fast, ref, strict=True)):
+        assert a == b, f"SAMPLE {k}: compiled lockstep {a}, reference {b}"
+    assert {k: fast_stats[k] for k in SAME_STATS} == {k: ref_stats[k] for k in SAME_STATS}
+    # the run went where the comparison means something: both sessions, every fault, 9 actuator levels
+    assert fast_stats["handshakes"] == 2 and fast_stats["pushes"] == fast_stats["stalls"] == 1
+    assert fast_stats["friction_steps"] == 1 and fast_stats["arm_coulomb"] == 0.01
+    assert len({s[4] for s in fast}) > 20  # the arm moved
+    # and the compiled round served it: all but the ticks where Python had something to do
+    ticks = fast_stats["ticks"]
+    assert ref_stats["compiled_ticks"] == 0
+    assert 0.9 * ticks < fast_stats["compiled_ticks"] < ticks
+    # its counters reach the stats as the Python loop's do: each tick timed, one write and one wait for each COMMAND
+    assert dev.timing.ticks == ticks == sum(dev.timing.histogram) and fast_stats["mean_work_us"] > 0.0
+    assert fast_stats["pty_writes"] >= ticks and fast_stats["pty_selects"] >= ticks - 2
+    assert fast_stats["pty_reads"] >= ticks - 2
+
+
+def answer_until(port: str, stop: threading.Event, seen: list[int]) -> None:
+    """A host answering every SAMPLE until ``stop``; the seq of each SAMPLE in ``seen``."""
+    ser = serial.Serial(port, timeout=0)
+    fd = ser.fileno()
+    hello = make_hello()
+    ser.write(b"\0" + encode(hello))
+    tail = b""
+    with ser:
+        while not stop.is_set():
+            try:
+                if not select.select([fd], [], [], 0.05)[0]:
+                    continue
+                *frames, tail = (tail + os.read(fd, 65536)).split(b"\0")
+            except OSError:  # the device closed the pty
+                return
+            for frame in frames:
+                m = try_decode_frame(frame) if frame else None
+                if type(m) is Sample:
+                    seen.append(m.seq)
+                    os.write(fd, encode_command(hello.nonce, m.seq, 0, CommandFlags.ENABLE))
+
+
+@pytest.mark.parametrize("request_", ["stop", "reset"])
+def test_a_request_from_another_thread_reaches_the_compiled_round(request_: str) -> None:
+    """stop() and the fault requests act at the next tick while the C serves the rounds: a stop ends the run at once,
+    a reset restarts the device (it goes idle: the host's SAMPLEs stop coming, seq from 0 after a new HELLO)."""
+    cfg = build_config(device={"rate_hz": 1000, "pacing": "lockstep", "priority": "normal"})
+    dev = VirtualDevice(cfg).start()
+    halt, seen = threading.Event(), []
+    host = threading.Thread(target=answer_until, args=(dev.port, halt, seen), daemon=True)
+    host.start()
+    try:
+        deadline = time.monotonic() + 20.0
+        while dev.stats.compiled_ticks < 2000:
+            assert time.monotonic() < deadline and dev.running, dev.stats
+            time.sleep(0.01)
+        if request_ == "stop":
+            t = time.monotonic()
+            dev.stop()
+            assert not dev.running and time.monotonic() - t < 1.0
+        else:
+            dev.reset()
+            deadline = time.monotonic() + 5.0
+            while dev.stats.resets < 1:
+                assert time.monotonic() < deadline
+                time.sleep(0.01)
+            time.sleep(0.2)
+            assert not dev.firmware.streaming and dev.firmware.seq == 0
+            n = len(seen)
+            time.sleep(0.2)
+            assert len(seen) == n  # idle after the reset: no more SAMPLEs
+    finally:
+        halt.set()
+        host.join(5.0)
+        dev.stop()
+    st = dev.stats
+    assert st.ticks == dev.timing.ticks and st.compiled_ticks <= st.ticks and st.samples_sent >= len(seen)
