@@ -54,6 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spin-us", type=float, metavar="US", help="longest busy-wait before a deadline (default 100)")
     p.add_argument("--priority", choices=("normal", "realtime"),
                    help="realtime (default): SCHED_FIFO for the device thread if permitted, else nice -10")
+    p.add_argument("--cpu", type=int, metavar="N", help="pin the device thread to CPU N (furuta-rt run --cpu N "
+                   "passes its own: host and device on one CPU; default: not pinned)")
     p.add_argument("--firmware", choices=("python", "c", "board"),
                    help="device logic: c (default), the microcontroller's C core built for this machine; python; or "
                         "board, the flashed image (scripts/build_firmware) on the register-level STM32F401 model")
@@ -118,7 +120,7 @@ def config_from_args(args: argparse.Namespace) -> MockConfig:
         device={
             "rate_hz": args.rate, "watchdog_ms": args.watchdog_ms, "seed": args.seed,
             "initial_theta": _initial_theta(args), "substep_hz": args.substep_hz, "pacing": args.pacing,
-            "spin_us": args.spin_us, "priority": args.priority,
+            "spin_us": args.spin_us, "priority": args.priority, "cpu": args.cpu,
             "firmware": args.firmware, "plant": args.plant,
         },
         fault_settings={

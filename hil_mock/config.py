@@ -17,6 +17,7 @@ A mock TOML file (all tables optional)::
     pacing = "realtime"             # realtime | free (as fast as possible) | lockstep (wait for each COMMAND)
     spin_us = 100                   # the longest busy-wait before a deadline (it covers the sleeps' steady overshoot)
     priority = "realtime"           # SCHED_FIFO for the device thread if permitted (else nice -10); or "normal"
+    cpu = 1                         # pin the device thread to this CPU (default: not pinned)
     late_threshold_us = 250         # a tick starting later than this is counted late (default: period / 4)
     firmware = "c"                  # device logic: the microcontroller's C core built for this machine, or "python"
     plant = "compiled"              # the plant in C (furuta_rt/sim/csrc/plant.c), or "python": the reference simulator
@@ -65,6 +66,8 @@ class DeviceSettings(_Section):
     pacing: Literal["realtime", "free", "lockstep"] = "realtime"
     spin_us: Annotated[float, Field(ge=0, le=2000)] = 100.0
     priority: Literal["normal", "realtime"] = "realtime"
+    cpu: Annotated[int, Field(ge=0)] | None = None  # pin the device thread to this CPU (the host loop's, so that a round
+    # trip between them waits for no other CPU); None: not pinned
     late_threshold_us: Annotated[float, Field(gt=0)] | None = None  # default: a quarter period
     firmware: Literal["python", "c", "board"] = "c"  # device logic: the C core (hil_mock.c_firmware),
     # hil_mock.firmware, or the flashed image on the register-level board model (hil_mock.board_model)

@@ -39,6 +39,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from furuta_rt.cpu_idle import hold_wakeup_latency
+from furuta_rt.cpu_placement import pin_cpu
 from furuta_rt.errors import UserError
 from furuta_rt.model.rig import RigModel
 from hil_mock.c_firmware import AFTER_WRITE, AWAITING, CFirmware, make_firmware
@@ -105,6 +106,7 @@ class DeviceStats:
     spin_us: float = 0.0  # the busy wait before a real-time deadline, as learned by the end
     friction_steps: int = 0
     arm_coulomb: float = 0.0  # the arm's Coulomb level at the end (after any friction_step), N m
+    cpu: int | None = None  # the CPU the device thread was pinned to (None: not pinned)
     pushes: int = 0
     compiled_ticks: int = 0  # ticks served by the compiled lockstep round (CFirmware.serve_lockstep)
 
@@ -123,7 +125,8 @@ class DeviceStats:
     def summary(self) -> str:
         """Human-readable block, as printed by ``hil-mock`` on exit."""
         return "\n".join((
-            f"hil-mock: {self.ticks} ticks at {self.rate_hz} Hz ({self.pacing}, {self.priority} priority), "
+            f"hil-mock: {self.ticks} ticks at {self.rate_hz} Hz ({self.pacing}, {self.priority} priority"
+            f"{'' if self.cpu is None else f', CPU {self.cpu}'}), "
             f"{self.samples_sent} SAMPLEs, plant {self.plant_s:.3f} s in {self.wall_s:.3f} s wall",
             f"hil-mock: timing: late ticks {self.late_ticks} (> {self.late_threshold_us:.0f} µs), overruns "
             f"{self.overruns} ({self.missed_periods} periods skipped), lateness worst {self.worst_lateness_us:.0f} µs "
@@ -181,6 +184,7 @@ class VirtualDevice:
         self.stalls = 0
         self.pushes = 0
         self.priority = "normal"
+        self.cpu: int | None = None
         self.pty_reads = self.pty_writes = self.pty_selects = 0
         self._drained = False  # the last read ended short: the pty was empty
         threshold = dev.late_threshold_us * 1e-6 if dev.late_threshold_us else 0.25 / self.firmware.rate_hz
@@ -432,6 +436,10 @@ class VirtualDevice:
         if self.config.device.priority == "realtime" and self.pacing != "free":  # free-running must not hog a core
             self.priority = raise_priority()
             qos, _ = hold_wakeup_latency(0)  # a device that keeps time answers at once; without it, as before
+        if self.config.device.cpu is not None:  # on the host loop's CPU: their round trip waits for no other CPU
+            self.cpu, cpu_warning = pin_cpu(self.config.device.cpu)
+            if cpu_warning:
+                print(f"hil-mock: warning: {cpu_warning}", file=sys.stderr, flush=True)
         fw = self.firmware
         timing = self.timing
         pc = time.perf_counter
@@ -603,6 +611,7 @@ class VirtualDevice:
             rate_hz=fw.rate_hz,
             pacing=self.pacing,
             priority=self.priority,
+            cpu=self.cpu,
             ticks=t.ticks,
             samples_sent=fw.samples_sent,
             late_ticks=t.late_ticks,

@@ -376,15 +376,20 @@ class DaemonRun:
         }
 
 
-_RUNS: dict[tuple[int, float, bool, int | None], DaemonRun] = {}
+_RUNS: dict[tuple[int, float, bool, int | None, int | None], DaemonRun] = {}
+_ALLOWED = sorted(os.sched_getaffinity(0))
+LOOP_CPU: int | None = _ALLOWED[-1] if len(_ALLOWED) > 1 else None
+"""The CPU the bench's daemon runs use (`run --cpu`: the loop, hil-mock's device and the kernel's tty work on it) —
+the last allowed one, as furuta_rt.cpu_placement.pin_cpu chooses; None on a single CPU."""
 
 
 def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = True, foxglove_port: int | None = None,
-               cache: bool = True) -> DaemonRun:
+               cache: bool = True, cpu: int | None = LOOP_CPU) -> DaemonRun:
     """Run the daemon against hil-mock (real-time pacing, over a pty, with an MCAP log unless ``log`` is
-    False, serving the live view on ``foxglove_port`` if given), sampled from outside. Cached unless ``cache``
-    is False: the closed-loop, logging and memory sections share a run."""
-    key = (rate, seconds, log, foxglove_port)
+    False, serving the live view on ``foxglove_port`` if given, on one CPU with ``--cpu`` unless ``cpu`` is None),
+    sampled from outside. Cached unless ``cache`` is False: the closed-loop, logging and memory sections share a
+    run."""
+    key = (rate, seconds, log, foxglove_port, cpu)
     if cache and key in _RUNS:
         return _RUNS[key]
     with tempfile.TemporaryDirectory(prefix="furuta-bench-") as tmp:
@@ -392,7 +397,7 @@ def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = Tru
         cmd = [*FURUTA_RT, "run", "--mock", "--rate", str(rate), "--duration", f"{seconds:g}",
                "--no-tui", "--summary-json", str(d / "summary.json"), "--mock-seed", "0",
                f"--mock-arg=--stats-json={d / 'mock.json'}", *(["--log", str(d / "run.mcap")] if log else []),
-               *([f"--foxglove={foxglove_port}"] if foxglove_port else [])]
+               *([f"--foxglove={foxglove_port}"] if foxglove_port else []), *(["--cpu", str(cpu)] if cpu is not None else [])]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         ticking = threading.Event()
         err_lines: list[str] = []
@@ -509,7 +514,14 @@ def _fifo(priority: int = 50) -> bool:
         return False
 
 
-def _device_side(conn: Any, fd: int | None, period_ns: int, seconds: float, work_ns: int, spin_ns: int = 0) -> None:
+def _pin(cpu: int | None) -> None:
+    if cpu is not None:
+        os.sched_setaffinity(0, {cpu})
+
+
+def _device_side(conn: Any, fd: int | None, period_ns: int, seconds: float, work_ns: int, spin_ns: int = 0,
+                 cpu: int | None = None) -> None:
+    _pin(cpu)
     fifo = _fifo()
     pc = time.perf_counter_ns
     periods = missed = 0
@@ -557,8 +569,9 @@ def _device_side(conn: Any, fd: int | None, period_ns: int, seconds: float, work
                "cpu_ns": cpu_ns})
 
 
-def _host_side(fd: int, other_fd: int, work_ns: int, after_ns: int, conn: Any) -> None:
+def _host_side(fd: int, other_fd: int, work_ns: int, after_ns: int, conn: Any, cpu: int | None = None) -> None:
     os.close(other_fd)  # the device's end, inherited: closed here, the device's close hangs the link up
+    _pin(cpu)
     _fifo()
     answers = 0
     cpu0 = time.process_time_ns()
@@ -588,10 +601,26 @@ def _open_link(kind: str) -> tuple[int, int]:
 
 
 def probe(kind: str, rate: int, seconds: float, device_work_us: float = 0.0, host_work_us: float = 0.0,
-          device_spin_us: float = 0.0, host_after_us: float = 0.0) -> dict[str, Any]:
+          device_spin_us: float = 0.0, host_after_us: float = 0.0, cpu: int | None = None) -> dict[str, Any]:
     """kind: 'wake' (one thread), 'socketpair' or 'pty' (device + host processes). The device spins
     ``device_spin_us`` before each deadline and burns ``device_work_us`` before it writes; the host burns
-    ``host_work_us`` before it answers and ``host_after_us`` after. Each side's CPU per period is reported."""
+    ``host_work_us`` before it answers and ``host_after_us`` after. Each side's CPU per period is reported.
+    ``cpu``: both sides and the kernel's unbound work (the pty's flush work) on that CPU, as `run --cpu` places the
+    daemon."""
+    if cpu is None:
+        return _probe(kind, rate, seconds, device_work_us, host_work_us, device_spin_us, host_after_us, None)
+    from furuta_rt.cpu_placement import confine_unbound_work
+
+    confined, _ = confine_unbound_work(cpu)
+    try:
+        return _probe(kind, rate, seconds, device_work_us, host_work_us, device_spin_us, host_after_us, cpu)
+    finally:
+        if confined is not None:
+            confined.restore()
+
+
+def _probe(kind: str, rate: int, seconds: float, device_work_us: float, host_work_us: float, device_spin_us: float,
+           host_after_us: float, cpu: int | None) -> dict[str, Any]:
     ctx = multiprocessing.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
     host_recv, host_send = ctx.Pipe(duplex=False)
@@ -601,11 +630,11 @@ def probe(kind: str, rate: int, seconds: float, device_work_us: float = 0.0, hos
         dev_fd, host_fd = _open_link(kind)
         os.set_blocking(dev_fd, False)
         host = ctx.Process(target=_host_side, args=(host_fd, dev_fd, round(host_work_us * 1000),
-                                                    round(host_after_us * 1000), host_send))
+                                                    round(host_after_us * 1000), host_send, cpu))
         host.start()
         os.close(host_fd)
     dev = ctx.Process(target=_device_side, args=(send, dev_fd, round(1e9 / rate), seconds, round(device_work_us * 1000),
-                                                 round(device_spin_us * 1000)))
+                                                 round(device_spin_us * 1000), cpu))
     dev.start()
     if dev_fd is not None:
         os.close(dev_fd)
@@ -649,20 +678,21 @@ def pair_like(run: DaemonRun, idle: dict[str, Any]) -> dict[str, float]:
             "control_cpu_us": control, "mock_cpu_us": mock}
 
 
-def interleaved_comparison(rate: int, block_s: float, blocks: int) -> dict[str, Any]:
+def interleaved_comparison(rate: int, block_s: float, blocks: int, cpu: int | None = LOOP_CPU) -> dict[str, Any]:
     """furuta-rt against the machine, block by block: a daemon run (`run --mock --log`, real-time hil-mock over a
     pty), then the bare pty pair doing the same CPU work per period, then a lone SCHED_FIFO thread — ``blocks``
     times, each ``block_s`` long. This machine's stalls drift over minutes (a lone thread's misses move between
     ~0.1 % and several %), so one long run against one short probe compares two different machines; alternating
     blocks compare the two under the same conditions, and the spread of the per-block differences says how
-    finely the comparison resolves."""
-    idle = probe("pty", rate, 1.0)
+    finely the comparison resolves. ``cpu``: all three on that CPU (the daemon with `--cpu`, the pair and the lone
+    thread pinned there, with the kernel's unbound work); None: where the scheduler puts them."""
+    idle = probe("pty", rate, 1.0, cpu=cpu)
     rows = []
     for _ in range(blocks):
-        run = daemon_run(rate, block_s, cache=False)
+        run = daemon_run(rate, block_s, cache=False, cpu=cpu)
         work = pair_like(run, idle)
-        pair = probe("pty", rate, block_s, **{k: v for k, v in work.items() if not k.endswith("_cpu_us")})
-        wake = probe("wake", rate, block_s / 2)
+        pair = probe("pty", rate, block_s, **{k: v for k, v in work.items() if not k.endswith("_cpu_us")}, cpu=cpu)
+        wake = probe("wake", rate, block_s / 2, cpu=cpu)
         rows.append({"daemon": [run.misses, run.periods], "pair": [pair["missed"], pair["periods"]],
                      "lone_thread": [wake["missed"], wake["periods"]],
                      "daemon_cpu_us": {"control": work["control_cpu_us"], "mock": work["mock_cpu_us"]},
@@ -675,7 +705,7 @@ def interleaved_comparison(rate: int, block_s: float, blocks: int) -> dict[str, 
     for r in rows:
         r["percent"] = {k: 100.0 * r[k][0] / max(r[k][1], 1) for k in ("daemon", "pair", "lone_thread")}
     diffs = [r["percent"]["daemon"] - r["percent"]["pair"] for r in rows]
-    out = {"blocks": rows, "block_s": block_s, "idle_pair": {k: idle[k] for k in ("device_cpu_us_per_period",
+    out = {"cpu": cpu, "blocks": rows, "block_s": block_s, "idle_pair": {k: idle[k] for k in ("device_cpu_us_per_period",
                                                                                   "host_cpu_us_per_answer") if k in idle},
            "daemon_percent": pooled("daemon"), "pair_percent": pooled("pair"), "lone_thread_percent": pooled("lone_thread"),
            "difference_points": pooled("daemon") - pooled("pair"),
@@ -692,15 +722,19 @@ MISS_TARGET_PERCENT = 0.1
 
 @section("closed_loop")
 def bench_closed_loop(quick: bool) -> dict[str, Any]:
-    """`furuta-rt run --mock --log` at 1 kHz against hil-mock (another process, real-time pacing, over a
-    pty); a rate sweep; the machine's own limits (probes) and the attribution of the misses."""
+    """`furuta-rt run --mock --log --cpu N` at 1 kHz against hil-mock (another process, real-time pacing, over a
+    pty); a rate sweep; the machine's own limits (probes) and the attribution of the misses; the comparison with the
+    bare pair on one CPU and, for reference, with no CPU given (where the scheduler puts the processes)."""
     main = daemon_run(1000, 60.0)  # shared with the logging and memory sections
-    out: dict[str, Any] = {"at_1kHz": main.figures(), "attribution_1kHz": main.attribution}
+    out: dict[str, Any] = {"cpu": LOOP_CPU, "at_1kHz": main.figures(), "attribution_1kHz": main.attribution}
     out["target"] = f"< {MISS_TARGET_PERCENT}% misses at 1 kHz, or within {MISS_TARGET_PERCENT} points of the bare pair's"
     probe_s = 3.0 if quick else 60.0
     out["probes_1kHz"] = {kind: probe(kind, 1000, probe_s) for kind in ("wake", "socketpair", "pty")}
     cmp_ = interleaved_comparison(1000, 10.0 if quick else 20.0, 4 if quick else 6)
     out["versus_bare_pair_1kHz"] = cmp_
+    if LOOP_CPU is not None:
+        out["versus_bare_pair_1kHz_no_cpu_given"] = interleaved_comparison(1000, 10.0 if quick else 20.0,
+                                                                           4 if quick else 6, cpu=None)
     out["met"] = out["at_1kHz"]["miss_percent"] < MISS_TARGET_PERCENT or cmp_["within_0.1_of_pair"]
     out["probes_1kHz"]["mock_minimal_host"] = mock_minimal_host(1000, probe_s)
     if not quick:  # the same run without --log (no logger process, no queue)
@@ -1269,18 +1303,26 @@ def table(res: dict[str, Any]) -> list[dict[str, Any]]:
     if "closed_loop" in res:
         c = res["closed_loop"]
         a = c["at_1kHz"]
-        row(f"closed loop 1 kHz, {a['seconds']:g} s, --log: device rate", f"{a['device_rate_hz']:.1f} Hz", "1000 Hz",
+        on = f", --cpu {c['cpu']}" if c.get("cpu") is not None else ""
+        row(f"closed loop 1 kHz, {a['seconds']:g} s, --log{on}: device rate", f"{a['device_rate_hz']:.1f} Hz", "1000 Hz",
             f"{a['achieved_fraction']:.4f}×")
         row("closed loop 1 kHz: deadline misses", f"{a['misses']} of {a['periods']}", "periods",
             f"{a['miss_percent']:.2f}%", "< 0.1%", a["miss_percent"] < MISS_TARGET_PERCENT)
-        v = c["versus_bare_pair_1kHz"]
-        n = len(v["blocks"])
-        se = f" ± {v['difference_se_points']:.2f}" if v["difference_se_points"] is not None else ""
-        row(f"closed loop 1 kHz vs the bare pty pair doing the same CPU work, {n} alternating blocks of "
-            f"{v['block_s']:g} s (a lone SCHED_FIFO thread in the same blocks: {v['lone_thread_percent']:.2f}%)",
-            f"{v['daemon_percent']:.2f}% misses", f"bare pair {v['pair_percent']:.2f}%",
-            f"{v['difference_points']:+.2f}{se} points (per-block spread: standard error)", "within 0.1 points or < 0.1%",
-            c["met"])
+        for key, where in (("versus_bare_pair_1kHz", f"all on CPU {c.get('cpu')}"),
+                           ("versus_bare_pair_1kHz_no_cpu_given", "no CPU given")):
+            if key not in c:
+                continue
+            v = c[key]
+            if v.get("cpu") is None:
+                where = "no CPU given"
+            n = len(v["blocks"])
+            se = f" ± {v['difference_se_points']:.2f}" if v["difference_se_points"] is not None else ""
+            headline = key == "versus_bare_pair_1kHz"
+            row(f"closed loop 1 kHz vs the bare pty pair doing the same CPU work, {where}, {n} alternating blocks of "
+                f"{v['block_s']:g} s (a lone SCHED_FIFO thread in the same blocks: {v['lone_thread_percent']:.2f}%)",
+                f"{v['daemon_percent']:.2f}% misses", f"bare pair {v['pair_percent']:.2f}%",
+                f"{v['difference_points']:+.2f}{se} points (per-block spread: standard error)",
+                "within 0.1 points or < 0.1%" if headline else "", c["met"] if headline else None)
         row("closed loop 1 kHz: latency sample→command p50 / p99", f"{a['latency_p50_us']:.0f} / {a['latency_p99_us']:.0f} µs",
             "period 1000 µs", f"{100 * a['latency_p50_fraction']:.0f}% / {100 * a['latency_p99_fraction']:.0f}%")
         at = c["attribution_1kHz"]

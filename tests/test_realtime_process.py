@@ -11,9 +11,11 @@ import signal
 import time
 from pathlib import Path
 
+import pytest
 from test_reliability_harness import DaemonProcess, traceback_free
 
 from furuta_rt.cpu_idle import CPU_LATENCY_DEVICE, current_wakeup_latency_us
+from furuta_rt.cpu_placement import STATE_FILE, WORKQUEUE_CPUMASK, mask_cpus
 
 
 def _mapped_files(pid: int) -> set[str]:
@@ -69,6 +71,64 @@ def test_the_control_process_holds_no_scipy_and_no_blas_threads_and_keeps_idle_c
     spawned = [c for c in children if "spawn_main" in c]
     assert len(spawned) == 1 and sum("hil_mock" in c for c in children) == 1, \
         f"the logger and the mock run beside it, the design helper has ended: {children}"
+
+
+def _allowed_cpus(pid: int, tid: int | None = None) -> set[int]:
+    return set(os.sched_getaffinity(tid if tid is not None else pid))
+
+
+def _fifo_thread(pid: int) -> int:
+    """The SCHED_FIFO thread of ``pid`` (the loop, the device's serving thread)."""
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        if os.sched_getscheduler(int(task.name)) & ~getattr(os, "SCHED_RESET_ON_FORK", 0) == os.SCHED_FIFO:
+            return int(task.name)
+    raise AssertionError(f"no SCHED_FIFO thread in {pid}")
+
+
+@pytest.mark.skipif(not os.access(WORKQUEUE_CPUMASK, os.W_OK) or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs root (the kernel's unbound work mask) and two CPUs")
+def test_one_cpu_for_the_loop_the_device_and_the_ttys_kernel_work(tmp_path: Path) -> None:
+    """`run --cpu N`: the loop and hil-mock's device thread on CPU N, the kernel's unbound work (the pty's flush work)
+    confined there while it runs, the logger kept off it; the mask put back at the end — and after a SIGKILL, which
+    leaves it confined, by the next run."""
+    # the mask before any run: a run killed earlier may have left it confined, with the original in its state file
+    before = STATE_FILE.read_text().split()[1] if STATE_FILE.exists() else WORKQUEUE_CPUMASK.read_text().strip()
+    cpu = sorted(mask_cpus(before) & os.sched_getaffinity(0))[-1]
+    daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "60", "--cpu", str(cpu), "--log", str(tmp_path / "a.mcap")])
+    try:
+        daemon.wait_for_line("→ balancing")
+        during = mask_cpus(WORKQUEUE_CPUMASK.read_text())
+        state = STATE_FILE.read_text().split()
+        loop_cpus = _allowed_cpus(daemon.pid, _fifo_thread(daemon.pid))
+        mock = [p for p in daemon.children() if "hil_mock" in _cmdline(p)]
+        device_cpus = _allowed_cpus(mock[0], _fifo_thread(mock[0]))
+        logger_cpus = [_allowed_cpus(p) for p in daemon.spawned()]
+        daemon.kill_group(signal.SIGINT)
+        rc = daemon.wait()
+    finally:
+        daemon.kill_group(signal.SIGKILL)
+    assert rc == 0 and traceback_free(daemon.stderr), daemon.stderr
+    assert f"pinned to CPU {cpu}, the kernel's tty work on CPU {cpu} too" in daemon.stderr
+    assert during == {cpu} and state == [str(daemon.pid), before]
+    assert loop_cpus == {cpu} and device_cpus == {cpu}, (loop_cpus, device_cpus)
+    assert len(logger_cpus) == 1 and cpu not in logger_cpus[0], logger_cpus
+    assert f"realtime, fifo priority, CPU {cpu})" in daemon.stdout
+    assert WORKQUEUE_CPUMASK.read_text().strip() == before and not STATE_FILE.exists()
+
+    killed = DaemonProcess(["--mock", "--no-tui", "--duration", "60", "--cpu", str(cpu)])
+    try:
+        killed.wait_for_line("→ balancing")
+        killed.kill_group(signal.SIGKILL)
+        killed.wait()
+    finally:
+        killed.kill_group(signal.SIGKILL)
+    assert mask_cpus(WORKQUEUE_CPUMASK.read_text()) == {cpu}, "a killed run cannot put the mask back itself"
+    after = DaemonProcess(["--mock", "--no-tui", "--duration", "1", "--cpu", str(cpu)])
+    try:
+        assert after.wait() == 0, after.stderr
+    finally:
+        after.kill_group(signal.SIGKILL)
+    assert WORKQUEUE_CPUMASK.read_text().strip() == before and not STATE_FILE.exists()
 
 
 # ------------------------------------------------------------------ the controller design kept between runs

@@ -69,8 +69,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "(the default when stdout is not a terminal)")
     p.add_argument("--tui", action="store_true", help="force the live dashboard")
     p.add_argument("--no-rt", action="store_true", help="do not ask for SCHED_FIFO, memory locking or CPU pinning")
-    p.add_argument("--cpu", type=int, metavar="N", help="pin the control loop to CPU N (with SCHED_FIFO; default: not "
-                   "pinned, as on a shared machine a pinned task cannot move away from a busy CPU)")
+    p.add_argument("--cpu", type=int, metavar="N", help="pin the control loop to CPU N (with SCHED_FIFO), with the "
+                   "kernel's tty work (as root) and, with --mock, the device: a SAMPLE → COMMAND round trip then waits "
+                   "for no other CPU; the logger and dashboard run on the others. Default: not pinned, as on a shared "
+                   "machine a pinned task cannot move away from a busy CPU")
     p.add_argument("--baud", type=int, default=1_000_000, help="UART baud rate (ignored by USB CDC; default 1000000)")
     p.add_argument("--watchdog-ms", type=int, metavar="MS",
                    help=f"device watchdog (default 20 ms and at least 5 periods; with --mock {MOCK_TIMEOUT_MS:g} ms)")
@@ -153,6 +155,8 @@ def mock_arguments(args: argparse.Namespace, rig_source: str, rate: int, watchdo
         out += ["--seed", str(args.mock_seed)]
     if args.mock_firmware is not None:
         out += ["--firmware", args.mock_firmware]
+    if args.cpu is not None and not args.no_rt:  # the device's thread on the loop's CPU: a round trip then needs no other
+        out += ["--cpu", str(args.cpu)]
     return out + list(args.mock_arg)
 
 

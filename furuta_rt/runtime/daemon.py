@@ -51,7 +51,7 @@ from furuta_rt.runtime.channel import Channel, Flag
 from furuta_rt.runtime.design_process import DesignProcess
 from furuta_rt.runtime.hardware import DeviceInfo, SerialHardware
 from furuta_rt.runtime.logger import LogSetup, logger_process
-from furuta_rt.runtime.rt import CONTROL_THREAD_STACK, setup_realtime
+from furuta_rt.runtime.rt import CONTROL_THREAD_STACK, keep_off_loop_cpu, release_cpu_work, setup_realtime
 from furuta_rt.runtime.summary import format_summary, mock_injections, summary_dict
 
 LOG_QUEUE_BATCHES = 200  # 20 s of ticks at 10 batches/s before the loop starts dropping
@@ -222,6 +222,7 @@ class _Children:
         self.dash_q = Channel(2)
         proc = self.ctx.Process(target=dashboard_process, args=(self.dash_q, info), name="furuta-rt-dashboard")
         proc.start()
+        keep_off_loop_cpu(proc.pid)  # started from the pinned thread: it would inherit the loop's CPU
         self.dashboard = proc
 
     def stop_dashboard(self) -> None:
@@ -394,7 +395,12 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
             if not ipaddress.ip_address(socket.getaddrinfo(opts.foxglove_host, None)[0][4][0]).is_loopback:
                 _say(f"warning: the live view listens on {opts.foxglove_host}:{opts.foxglove_port}: anyone who can "
                      "reach this computer can watch the run (the stream is not authenticated or encrypted)")
+        if children.log_q is not None:  # the first put starts the queue's feeder thread: not in a tick, and before
+            # the loop's thread is pinned (a thread inherits its creator's CPUs)
+            children.log_q.put(("event", (time.time_ns(), "INFO", f"connecting to {port} at {rate} Hz")))
         applied, rt_warnings = setup_realtime(opts.realtime, cpu=opts.cpu)
+        if children.logger is not None:
+            keep_off_loop_cpu(children.logger.pid)
         warnings += rt_warnings
         sys.setswitchinterval(1e-4)  # a queue feeder thread must give the GIL back quickly
         for w in warnings:
@@ -407,8 +413,6 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
                 arm_theta=limits.arm_theta, theta_limit=limits.theta_limit, phi_limit=limits.phi_limit,
                 live_url=_live_url(opts) if opts.foxglove_port is not None else None,
                 u_unit="V" if rig.actuator.kind == "dc_motor" else "N m"))
-        if children.log_q is not None:  # the first put starts the queue's feeder thread: not in a tick
-            children.log_q.put(("event", (time.time_ns(), "INFO", f"connecting to {port} at {rate} Hz")))
         info = hw.handshake(rate, opts.watchdog_ms)
         late_warnings: list[str] = []
         _check_device(info, rig, late_warnings)
@@ -455,6 +459,8 @@ def _run_session(opts: RunOptions, guard: stop_signals.RunGuard) -> int:
         if hw is not None:
             hw.stop()
             hw.close()
+        for w in release_cpu_work():
+            _say(f"warning: {w}")
         children.stop_dashboard()
         comp = _compensation_summary(opts, ctrl) if ctrl is not None else {}
         summary = "" if result is None else format_summary(result, rate_hz=rate, mode=opts.mode, rig=rig.name,

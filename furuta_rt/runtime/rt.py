@@ -1,5 +1,5 @@
 """Real-time setup of the control process: frozen GC, SCHED_FIFO, locked memory, idle CPUs that wake at once, CPU
-affinity.
+affinity (with the kernel's tty work on the same CPU).
 
 Each step is attempted and, when the system does not permit it, turned into a warning naming the
 fix; none is ever a failure (the loop still runs, with more jitter).
@@ -7,18 +7,23 @@ fix; none is ever a failure (the loop still runs, with more jitter).
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import ctypes
 import ctypes.util
 import gc
 import os
 
 from furuta_rt.cpu_idle import hold_wakeup_latency
+from furuta_rt.cpu_placement import UnboundWork, confine_unbound_work, pin_cpu
 
 MCL_CURRENT = 1
 MCL_FUTURE = 2
 
 
 _HELD: list[int] = []  # the PM QoS request's descriptor: open for the life of the control process
+_CONFINED: list[UnboundWork] = []  # the kernel's unbound work on the loop's CPU, until release_cpu_work()
+_OTHER_CPUS: set[int] = set()  # the CPUs besides the one the loop is pinned to: where its helper processes run
 
 CONTROL_THREAD_STACK = 1 << 20  # bytes: a helper thread of the control process (queue feeder, watcher) needs little
 
@@ -64,23 +69,12 @@ def lock_memory() -> str | None:
     return None
 
 
-def pin_cpu(cpu: int | None = None) -> tuple[int | None, str | None]:
-    """Pin the calling thread to ``cpu`` (None: the last allowed CPU when there are ≥ 2)."""
-    try:
-        allowed = sorted(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        return None, "CPU affinity not available on this system"
-    if cpu is None:
-        if len(allowed) < 2:
-            return None, None
-        cpu = allowed[-1]
-    if cpu not in allowed:
-        return None, f"CPU {cpu} is not available to this process (allowed: {allowed}); not pinned"
-    try:
-        os.sched_setaffinity(0, {cpu})
-    except OSError as err:
-        return None, f"cannot pin to CPU {cpu} ({err.strerror}); not pinned"
-    return cpu, None
+def keep_off_loop_cpu(pid: int) -> None:
+    """Move a helper process (logger, dashboard) off the CPU the loop is pinned to: there its work would compete with
+    the kernel's tty work, which the loop's round trip waits for. Nothing when the loop is not pinned."""
+    if _OTHER_CPUS:
+        with contextlib.suppress(OSError):  # the process has just ended: nothing to move
+            os.sched_setaffinity(pid, _OTHER_CPUS)
 
 
 def setup_realtime(enable: bool = True, priority: int = 50, cpu: int | None = None) -> tuple[list[str], list[str]]:
@@ -109,9 +103,29 @@ def setup_realtime(enable: bool = True, priority: int = 50, cpu: int | None = No
     else:
         applied.append(f"SCHED_FIFO priority {priority}")
         if cpu is not None:  # opt-in: on a shared machine a pinned task cannot flee a busy CPU
+            allowed = os.sched_getaffinity(0)
             pinned, w = pin_cpu(cpu)
             if w:
                 warnings.append(w)
             if pinned is not None:
+                _OTHER_CPUS.clear()
+                _OTHER_CPUS.update(allowed - {pinned})
                 applied.append(f"pinned to CPU {pinned}")
+                confined, w = confine_unbound_work(pinned)
+                if w:
+                    warnings.append(w)
+                if confined is not None:
+                    _CONFINED.append(confined)
+                    atexit.register(release_cpu_work)
+                    applied.append(f"the kernel's tty work on CPU {pinned} too (until the run ends)")
     return applied, warnings
+
+
+def release_cpu_work() -> list[str]:
+    """Put the kernel's unbound work back where it was before ``setup_realtime(cpu=...)``; warnings, if any."""
+    warnings = []
+    while _CONFINED:
+        w = _CONFINED.pop().restore()
+        if w:
+            warnings.append(w)
+    return warnings
