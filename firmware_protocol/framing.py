@@ -123,14 +123,16 @@ def _cobs_decode(enc: bytes | bytearray) -> bytearray | None:
     return out
 
 
+_CODE_BYTE = tuple(bytes((n + 1,)) for n in range(254))
+"""COBS code byte of a group of n data bytes followed by a zero."""
+
+
 def _stuff(inner: bytes | bytearray) -> bytes:
     """COBS-encode a short inner frame (< 254 bytes) and append the delimiter."""
-    out = bytearray()
+    out = b""
     for part in inner.split(b"\x00"):
-        out.append(len(part) + 1)
-        out += part
-    out.append(0)
-    return bytes(out)
+        out += _CODE_BYTE[len(part)] + part
+    return out + b"\x00"
 
 
 def _frame(inner: bytes) -> bytes:
@@ -178,7 +180,7 @@ def try_decode_frame(frame: bytes | bytearray) -> Message | int:
         return FrameStatus.UNKNOWN_TYPE
     if len(inner) != spec.inner_size:
         return FrameStatus.LENGTH
-    return spec.cls(*spec.body_struct.unpack_from(inner, 1))
+    return spec.make(*spec.body_struct.unpack_from(inner, 1))
 
 
 def decode_frame(frame: bytes | bytearray) -> Message:

@@ -250,8 +250,11 @@ def test_round_trip_every_type(cls: type[fp.Message], data: st.DataObject) -> No
     wire = fp.encode(msg)
     assert wire.endswith(b"\x00") and wire.count(0) == 1
     assert len(wire) == SPEC_BY_CLASS[cls].inner_size + 2
-    assert fp.decode_frame(wire[:-1]) == msg
+    decoded = fp.decode_frame(wire[:-1])
+    assert decoded == msg and type(decoded) is cls and hash(decoded) == hash(msg)
     assert fp.StreamDecoder().feed(wire) == [msg]
+    with pytest.raises(dataclasses.FrozenInstanceError):  # the decoder's fast constructor makes frozen messages too
+        decoded.__setattr__(SPEC_BY_CLASS[cls].field_names[0], 0)
 
 
 @FAST
