@@ -3,6 +3,7 @@ logs, how it trips, and the timing helpers. The HIL tests (test_run_hil.py) run 
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import queue
@@ -708,6 +709,43 @@ def test_a_retried_hello_answered_twice_follows_the_session_the_device_streams()
     commands = [m for m in daq.received if isinstance(m, fp.Command)]  # bound to the session the device streams
     assert [c.session for c in commands] == [hellos[-1].nonce], commands
     assert first is not None and (first.seq, first.t_us) == (0, 50_000)
+
+
+def test_a_frame_the_port_cut_short_stalls_once_and_the_next_starts_with_a_delimiter() -> None:
+    """A device that stops reading: frames fill the pty until one goes out in part; after the write timeout that
+    is LinkLost (not gone: the port is there), and the next frame starts with a 0x00 so the device's decoder drops
+    the cut one instead of merging it into the next (PROTOCOL.md §2.1)."""
+    import tty
+
+    from furuta_rt.runtime.hardware import LinkLost
+
+    device, host = os.openpty()
+    tty.setraw(device)
+    tty.setraw(host)
+    hw = SerialHardware(os.ttyname(host))
+    hw.open()
+    try:
+        frame = bytes(range(1, 200))  # no 0x00 (a COBS frame's body); 199 bytes: the pty's capacity is no multiple
+        sent = 0
+        with pytest.raises(LinkLost, match="stalled: the port took") as lost:
+            while sent < 10_000:
+                hw._send(frame, timeout=0.05)
+                sent += 1
+        assert lost.value.gone is False and hw.write_errors == 1
+        os.set_blocking(device, False)
+        got = b""
+        with contextlib.suppress(BlockingIOError):
+            while chunk := os.read(device, 65536):
+                got += chunk
+        cut = len(got) - sent * len(frame)
+        assert 0 < cut < len(frame) and got == frame * sent + frame[:cut], (sent, len(got))
+        hw._send(frame)
+        assert os.read(device, 4096) == b"\x00" + frame
+        hw._send(frame)  # the delimiter once, not on every frame after it
+        assert os.read(device, 4096) == frame
+    finally:
+        hw.close()
+        os.close(device)
 
 
 def test_missing_device_is_a_one_line_user_error() -> None:

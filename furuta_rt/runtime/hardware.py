@@ -256,8 +256,7 @@ class SerialHardware(HardwareInterface):
         """Write the whole frame, waiting up to ``timeout`` s (default WRITE_TIMEOUT_S) for the port to
         take the rest; LinkLost if it does not, or if the port fails. A frame cut short would corrupt
         the next one too (PROTOCOL.md §2.1), so the next frame starts with a delimiter."""
-        wrote = not self._torn
-        if wrote:  # the common case: the port takes the whole frame in one write
+        if not self._torn:  # the common case: the port takes the whole frame in one write
             try:
                 n = os.write(self._fd, frame)
             except BlockingIOError:
@@ -266,29 +265,29 @@ class SerialHardware(HardwareInterface):
                 raise LinkLost(f"write to {self.port} failed: {err}") from None
             if n == len(frame):
                 return
+            view = memoryview(frame)[n:]
         else:
             frame = b"\x00" + frame
-            n = 0
-        limit = self.WRITE_TIMEOUT_S if timeout is None else timeout
-        view = memoryview(frame)[n:]
-        start = 0.0
+            view = memoryview(frame)
+        self._send_rest(frame, view, self.WRITE_TIMEOUT_S if timeout is None else timeout)
+
+    def _send_rest(self, frame: bytes, view: memoryview, limit: float) -> None:
+        """Write ``view`` (the part of ``frame`` not yet taken) as the port takes it: write, then wait for room."""
+        start = None
         while True:
-            if wrote:  # the rest after the first write's part
-                wrote = False
-            else:
-                try:
-                    n = os.write(self._fd, view)
-                except BlockingIOError:
-                    n = 0
-                except OSError as err:
-                    self._torn = self._torn or len(view) < len(frame)
-                    raise LinkLost(f"write to {self.port} failed: {err}") from None
-                view = view[n:]
-                if not view:
-                    self._torn = False
-                    return
+            try:
+                n = os.write(self._fd, view)
+            except BlockingIOError:
+                n = 0
+            except OSError as err:
+                self._torn = self._torn or len(view) < len(frame)
+                raise LinkLost(f"write to {self.port} failed: {err}") from None
+            view = view[n:]
+            if not view:
+                self._torn = False
+                return
             now = time.perf_counter()
-            if not start:
+            if start is None:
                 start = now
             elif now - start >= limit:
                 self.write_errors += 1
