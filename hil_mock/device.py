@@ -149,7 +149,7 @@ class VirtualDevice:
 
     Use ``start()``/``stop()`` (background thread) or ``with VirtualDevice(cfg) as dev:``; ``run()``
     serves in the calling thread until ``stop()`` (from another thread or a signal handler).
-    Fault methods (``stall``, ``reset``, ``disconnect``, ``mute``, ``deafen``) are thread-safe and act
+    Fault methods (``stall``, ``reset``, ``disconnect``, ``mute``, ``deafen``, ``push``) are thread-safe and act
     at the next tick; ``link`` holds the live byte-fault rates.
     """
 
@@ -281,6 +281,9 @@ class VirtualDevice:
 
     def push(self, theta_dot_jump: float = 0.0) -> None:
         """An impulse on the pendulum: θ̇ jumps by ``theta_dot_jump`` rad/s (0: 2·√(ε/α), a full turn's energy)."""
+        self._act(lambda: self._do_push(theta_dot_jump))  # at the next tick: the plant's state is the loop's (or C's)
+
+    def _do_push(self, theta_dot_jump: float) -> None:
         p = self.firmware.sim.model.plant.p
         self.firmware.sim.theta_dot += theta_dot_jump or 2.0 * math.sqrt(p.epsilon / p.alpha)
         self.pushes += 1
@@ -329,7 +332,7 @@ class VirtualDevice:
                 fw.set_arm_coulomb(values["Fc"], values.get("Fs"))
                 self.friction_steps += 1
             elif ev.kind == "push":
-                self.push(ev.duration)
+                self._do_push(ev.duration)
             elif ev.kind.startswith("end_"):
                 setattr(self.link, ev.kind[4:], False)
 

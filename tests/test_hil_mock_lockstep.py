@@ -121,35 +121,44 @@ def answer_until(port: str, stop: threading.Event, seen: list[int]) -> None:
                     os.write(fd, encode_command(hello.nonce, m.seq, 0, CommandFlags.ENABLE))
 
 
-@pytest.mark.parametrize("request_", ["stop", "reset"])
+@pytest.mark.parametrize("request_", ["stop", "reset", "push"])
 def test_a_request_from_another_thread_reaches_the_compiled_round(request_: str) -> None:
     """stop() and the fault requests act at the next tick while the C serves the rounds: a stop ends the run at once,
-    a reset restarts the device (it goes idle: the host's SAMPLEs stop coming, seq from 0 after a new HELLO)."""
+    a reset restarts the device (it goes idle: the host's SAMPLEs stop coming, seq from 0 after a new HELLO), a push
+    moves the pendulum and the compiled rounds go on."""
     cfg = build_config(device={"rate_hz": 1000, "pacing": "lockstep", "priority": "normal"})
     dev = VirtualDevice(cfg).start()
     halt, seen = threading.Event(), []
     host = threading.Thread(target=answer_until, args=(dev.port, halt, seen), daemon=True)
     host.start()
-    try:
+
+    def wait_for(what: str, done: object) -> None:
         deadline = time.monotonic() + 20.0
-        while dev.stats.compiled_ticks < 2000:
-            assert time.monotonic() < deadline and dev.running, dev.stats
+        while not done():  # type: ignore[operator]
+            assert time.monotonic() < deadline and dev.running, f"{what}: {dev.stats}"
             time.sleep(0.01)
+
+    try:
+        wait_for("2000 compiled ticks", lambda: dev.stats.compiled_ticks >= 2000)
         if request_ == "stop":
             t = time.monotonic()
             dev.stop()
             assert not dev.running and time.monotonic() - t < 1.0
-        else:
+        elif request_ == "reset":
             dev.reset()
-            deadline = time.monotonic() + 5.0
-            while dev.stats.resets < 1:
-                assert time.monotonic() < deadline
-                time.sleep(0.01)
+            wait_for("the reset", lambda: dev.stats.resets == 1)
             time.sleep(0.2)
             assert not dev.firmware.streaming and dev.firmware.seq == 0
             n = len(seen)
             time.sleep(0.2)
             assert len(seen) == n  # idle after the reset: no more SAMPLEs
+        else:
+            assert abs(dev.firmware.sim.theta_dot) < 50.0  # falling, swinging: never this fast on its own
+            dev.push(200.0)
+            wait_for("the push", lambda: dev.stats.pushes == 1)
+            assert dev.firmware.sim.theta_dot > 100.0  # spinning over the top, gravity and friction aside
+            ticks = dev.stats.compiled_ticks
+            wait_for("compiled ticks after the push", lambda: dev.stats.compiled_ticks > ticks + 500)
     finally:
         halt.set()
         host.join(5.0)
