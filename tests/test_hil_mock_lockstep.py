@@ -165,3 +165,45 @@ def test_a_request_from_another_thread_reaches_the_compiled_round(request_: str)
         dev.stop()
     st = dev.stats
     assert st.ticks == dev.timing.ticks and st.compiled_ticks <= st.ticks and st.samples_sent >= len(seen)
+
+
+def test_a_full_pty_hands_the_frames_the_compiled_round_could_not_write_to_the_backlog() -> None:
+    """A host that answers each SAMPLE without reading it (it learns the seq from the device) fills the pty: the C's
+    write comes back short, the bytes it left go to the Python loop's backlog (a SAMPLE cut mid-frame finished from
+    there), frames beyond the backlog's bound are dropped and reported (TX_OVERFLOW). When the host reads again,
+    every frame it gets is whole, in order, the drops are the device's count, and the C serves the rounds again."""
+    from firmware_protocol import StatusFlags, StreamDecoder
+
+    cfg = build_config(device={"rate_hz": 1000, "pacing": "lockstep", "priority": "normal"})
+    with VirtualDevice(cfg) as dev, serial.Serial(dev.port, timeout=0) as ser:
+        fd, fw, dec = ser.fileno(), dev.firmware, StreamDecoder()
+        hello = make_hello()
+        ser.write(b"\0" + encode(hello))
+        deadline = time.monotonic() + 20.0
+        while not fw.streaming:
+            assert time.monotonic() < deadline
+            time.sleep(0.001)
+        answered = -1
+        while dev.tx_frames_dropped < 50:  # blind: the seq of the SAMPLE the device sent last, read from the device
+            assert time.monotonic() < deadline, dev.stats
+            seq = fw.seq - 1
+            if seq > answered:
+                os.write(fd, encode_command(hello.nonce, seq, 0, CommandFlags.ENABLE))
+                answered = seq
+        compiled_when_full = dev.compiled_ticks
+        samples: list[Sample] = []
+        while len(samples) < 3000 or samples[-1].seq < answered + 1000:  # read again, answer the newest SAMPLE
+            assert time.monotonic() < deadline, (len(samples), dev.stats)
+            if not select.select([fd], [], [], 0.2)[0]:
+                continue
+            new = [m for m in dec.feed(os.read(fd, 65536)) if type(m) is Sample]
+            if new:
+                samples += new
+                os.write(fd, encode_command(hello.nonce, new[-1].seq, 0, CommandFlags.ENABLE))
+        st = dev.stats
+    assert dec.errors == 0  # every frame whole: the bytes after a short write went out next, none twice
+    seqs = [s.seq for s in samples]
+    assert seqs == sorted(set(seqs)) and seqs[0] == 0
+    assert seqs[-1] + 1 - len(seqs) == st.tx_frames_dropped > 0  # what is missing is what the device dropped
+    assert any(s.status & StatusFlags.TX_OVERFLOW for s in samples)
+    assert st.compiled_ticks > compiled_when_full + 500  # the backlog went out, the C serves again
