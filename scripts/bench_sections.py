@@ -840,11 +840,33 @@ def link_ceiling(kind: str, spin: bool, rate: int, seconds: float) -> dict[str, 
     return {"round_trip_us": wall / trips * 1e6, "real_time_factor": trips / rate / wall}
 
 
+@contextlib.contextmanager
+def on_cpu(cpu: int | None) -> Any:
+    """This process (and what it forks or starts: hil-mock, the bare pairs' sides) on ``cpu`` with the kernel's unbound
+    work, as `furuta-rt run --cpu` places the loop; nothing when ``cpu`` is None."""
+    if cpu is None:
+        yield
+        return
+    from furuta_rt.cpu_placement import confine_unbound_work
+
+    before = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {cpu})
+    confined, _ = confine_unbound_work(cpu)
+    try:
+        yield
+    finally:
+        if confined is not None:
+            confined.restore()
+        os.sched_setaffinity(0, before)
+
+
 @section("mock")
 def bench_mock(quick: bool) -> dict[str, Any]:
     """hil-mock's real-time factor at 1 kHz with LuGre arm friction (scripts/bench_mock's figures): the device tick
     in-process (default device: C firmware core, compiled plant; reference: Python firmware and simulator), and
-    over a pty with a host answering every SAMPLE, free-running and in lockstep."""
+    over a pty with a host answering every SAMPLE, free-running and in lockstep. Lockstep and its ceiling are measured
+    with host, device and the kernel's tty work on one CPU (LOOP_CPU, as `run --cpu` places the loop), and again with no
+    CPU given."""
     bm = _bench_mock_module()
     rate = 1000
     ticks = 5 * rate if quick else 20 * rate
@@ -853,10 +875,14 @@ def bench_mock(quick: bool) -> dict[str, Any]:
     eff = [x for e in bm.LUGRE for x in ("--effect", e)]
     seconds = 3.0 if quick else 10.0
     rtf_pty, host, dev = bm.pty_factor(eff, rate, "free", seconds)
-    before = bm.pty_ceiling(rate, seconds)  # the ceiling just before and just after the lockstep run: the load drifts
-    rtf_lock, lock_host, lock_dev = bm.pty_factor(eff, rate, "lockstep", seconds)
-    after = bm.pty_ceiling(rate, seconds)
+    one = ("--cpu", str(LOOP_CPU)) if LOOP_CPU is not None else ()
+    with on_cpu(LOOP_CPU):
+        before = bm.pty_ceiling(rate, seconds)  # the ceiling just before and just after the lockstep run: the load drifts
+        rtf_lock, lock_host, lock_dev = bm.pty_factor(eff, rate, "lockstep", seconds, one)
+        after = bm.pty_ceiling(rate, seconds)
     ceiling = {k: (before[k] + after[k]) / 2 for k in ("real_time_factor", "round_trip_us", "device_cpu_us")}
+    unplaced = {"real_time_factor": bm.pty_factor(eff, rate, "lockstep", seconds)[0],
+                "pty_ceiling_real_time_factor": bm.pty_ceiling(rate, seconds)["real_time_factor"]}
     links = {"pty_blocking": bm.pty_ceiling(rate, seconds, "normal"),  # bench_mock's bare pair at normal priority
              **{f"{kind}_{'spinning' if spin else 'blocking'}": link_ceiling(kind, spin, rate, seconds)
                 for kind, spin in (("pty", True), ("socketpair", False), ("socketpair", True))}}
@@ -868,7 +894,8 @@ def bench_mock(quick: bool) -> dict[str, Any]:
         "pty_ceiling_real_time_factor": ceiling["real_time_factor"], "pty_round_trip_us": ceiling["round_trip_us"],
         "pty_ceiling_before_after": [before["real_time_factor"], after["real_time_factor"]],
         "pty_ceiling_device_priority": before.get("priority"), "pty_ceiling_device_cpu_us": ceiling["device_cpu_us"],
-        "lockstep_of_ceiling": rtf_lock / ceiling["real_time_factor"],
+        "lockstep_of_ceiling": rtf_lock / ceiling["real_time_factor"], "cpu": LOOP_CPU,
+        "lockstep_no_cpu_given": unplaced,
         "link_ceilings": links,
         "effects": " ".join(bm.LUGRE),
         "core_tick_us": tick_us, "core_real_time_factor": period_us / tick_us,
@@ -877,7 +904,8 @@ def bench_mock(quick: bool) -> dict[str, Any]:
         "pty_real_time_factor": rtf_pty, "pty_device_work_us": dev["mean_work_us"],
         "pty_samples": host["samples"], "pty_seq_gaps": host["seq_gaps"],
         "lockstep_real_time_factor": rtf_lock, "lockstep_device_work_us": lock_dev["mean_work_us"],
-        "lockstep_device_cpu_us": lock_dev["cpu_per_tick_us"],
+        "lockstep_device_cpu_us": lock_dev["cpu_per_tick_us"], "lockstep_host_cpu_us": lock_host["host_cpu_us"],
+        "lockstep_compiled_ticks": lock_dev.get("compiled_ticks"), "lockstep_ticks": lock_dev["ticks"],
         "lockstep_pty_calls_per_tick": {k: lock_dev[f"pty_{k}"] / ticks for k in ("writes", "selects", "reads")},
         "lockstep_samples": lock_host["samples"], "lockstep_command_late": lock_host["command_late"],
         "realtime_device_cpu_us": rt_dev["cpu_per_tick_us"], "realtime_spin_us": rt_dev["spin_us"],
@@ -1365,11 +1393,17 @@ def table(res: dict[str, Any]) -> list[dict[str, Any]]:
                 f"scipy {s['scipy_best']['method']} {s['scipy_best']['time_s']:.3f} s", f"{s['speedup_vs_scipy']:.2f}×")
     if "mock" in res:
         m = res["mock"]
-        row("hil-mock 1 kHz, LuGre, over a pty, lockstep", f"{m['lockstep_real_time_factor']:.1f}× real time",
+        on = f", host and device on CPU {m['cpu']}" if m.get("cpu") is not None else ""
+        row(f"hil-mock 1 kHz, LuGre, over a pty, lockstep{on}", f"{m['lockstep_real_time_factor']:.1f}× real time",
             "real time", f"{m['lockstep_real_time_factor']:.1f}×", "≥ 20×", m["met"])
-        row("— the pty's own lockstep ceiling (two bare processes answering frame for frame, same run)",
+        row("— the pty's own lockstep ceiling (two bare processes answering frame for frame, same run and placement)",
             f"{m['pty_ceiling_real_time_factor']:.1f}× real time (round trip {m['pty_round_trip_us']:.0f} µs)",
             "hil-mock lockstep", f"hil-mock reaches {100 * m['lockstep_of_ceiling']:.0f}% of it")
+        if "lockstep_no_cpu_given" in m:
+            u = m["lockstep_no_cpu_given"]
+            row("— lockstep with no CPU given (the scheduler places host, device and tty work)",
+                f"{u['real_time_factor']:.1f}× real time", f"ceiling placed alike {u['pty_ceiling_real_time_factor']:.1f}×",
+                f"{100 * u['real_time_factor'] / u['pty_ceiling_real_time_factor']:.0f}% of it")
         lk = m["link_ceilings"]
         row("— the same bare pair at normal priority: over a pty waiting in select / spinning; over a socketpair "
             "waiting / spinning", " / ".join(f"{lk[k]['real_time_factor']:.1f}×" for k in
