@@ -42,7 +42,8 @@ WRAPPING_RAIL = 1 << 20  # beyond every int16 reading
 OUT_BYTES = 4096  # device.c HIL_OUT_BYTES
 OUT_FRAMES = 128  # device.c HIL_OUT_FRAMES
 NOISE_BLOCK = 4096  # noise draws handed to device.c at a time
-_STREAMING, _ANSWERED, _NEW_SESSION, _NOISE_LOW, _FRAMES, _NO_NOISE, _SHAPE = 1, 2, 4, 8, 16, 32, 64  # device.c's
+_STREAMING, _ANSWERED, _NEW_SESSION, _NOISE_LOW, _FRAMES, _NO_NOISE, _SHAPE, _RECONFIGURED = (
+    1, 2, 4, 8, 16, 32, 64, 128)  # device.c's
 _SLOW = _NEW_SESSION | _NOISE_LOW | _FRAMES | _NO_NOISE | _SHAPE
 AT_TOP, AFTER_WRITE, AWAITING = 0, 1, 2  # device.c hil_lockstep's phases
 _DP = ctypes.POINTER(ctypes.c_double)
@@ -134,7 +135,7 @@ class HilDevice(ctypes.Structure):
             "adc_min", "adc_max", "theta_offset_counts", "theta_wraps", "adc_bits", "bessel")),
         ("substep_hz", ctypes.c_double),
         ("plant_start_ns", ctypes.c_int64), ("substeps_done", ctypes.c_int64), ("pending", ctypes.c_int64),
-        ("sessions_seen", ctypes.c_uint32), ("replacements", ctypes.c_uint32),
+        ("sessions_seen", ctypes.c_uint32), ("replacements", ctypes.c_uint32), ("reconfigured", ctypes.c_uint32),
         ("clock_ns", ctypes.c_uint64), ("period_ns", ctypes.c_uint32), ("output", ctypes.c_int32),
         ("theta_adc", ctypes.c_int32), ("theta_dot_adc", ctypes.c_int32), ("phi_count", ctypes.c_int32),
         ("out_len", ctypes.c_uint32), ("out_frames", ctypes.c_uint32),
@@ -356,6 +357,10 @@ class CFirmware(Firmware):
     @property
     def answered(self) -> bool:
         return bool(self._bits & _ANSWERED)
+
+    @property
+    def reconfigured(self) -> bool:
+        return bool(self._bits & _RECONFIGURED)
 
     @property
     def status_flags(self) -> int:

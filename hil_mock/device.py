@@ -12,8 +12,9 @@ The loop, once per timer period (pacing "realtime"):
 
 Pacing "free" runs streaming ticks back to back (benchmarks); "lockstep" starts each streaming tick as
 soon as the COMMAND answering the previous SAMPLE arrived (deterministic runs on a loaded machine, a
-device slower than real time included; a SAMPLE left unanswered for LOCKSTEP_TIMEOUT_S is a late
-command and the device ticks on, still in lockstep). Idle, both pace in real time. Timing statistics cover streaming ticks only.
+device slower than real time included; a SAMPLE left unanswered for LOCKSTEP_TIMEOUT_S, or one the host made moot by
+a HELLO or a CONFIG after it, is a late command and the device ticks on, still in lockstep). Idle, both pace in real
+time. Timing statistics cover streaming ticks only.
 
 In lockstep the default device (C firmware core, compiled plant) serves the common round — tick, write, plant,
 wait for the COMMAND, read it — in C (hil_mock.c_firmware.CFirmware.serve_lockstep), round for round what this
@@ -576,7 +577,7 @@ class VirtualDevice:
     def _await_answer(self, until: float, drained: bool = False) -> bool:
         fw = self.firmware
         self._drained = drained
-        while not fw.answered:
+        while not fw.answered and not fw.reconfigured:  # a HELLO or CONFIG: the host will not answer it
             if self._stop.is_set() or self._fd is None:
                 return True
             remaining = until - time.perf_counter()

@@ -141,6 +141,7 @@ class Firmware:
         self.reboots = 0
         self.hangups = 0
         self.replacements = 0  # new sessions that found the rig put back at its initial state
+        self._reconfigured = False  # a HELLO or CONFIG arrived since the last tick
         self._boot()
 
     # ----------------------------------------------------------------- state
@@ -218,6 +219,13 @@ class Firmware:
         return self._answered
 
     @property
+    def reconfigured(self) -> bool:
+        """A HELLO or a CONFIG arrived since the last tick: a host that (re)configures the session does not answer a
+        SAMPLE sent before it (it drops the SAMPLE that shares a read with the HELLO_ACK or the STATUS), so a lockstep
+        device waits no longer for that answer (the answer missing: COMMAND_LATE at the next tick, as a wait in vain)."""
+        return self._reconfigured
+
+    @property
     def plant_time(self) -> float:
         """Simulated seconds since the plant was released (first HELLO)."""
         return self.substeps_done / self.substep_hz
@@ -231,8 +239,10 @@ class Firmware:
             if t is Command:
                 self._on_command(msg)  # type: ignore[arg-type]
             elif t is Hello:
+                self._reconfigured = True
                 self._on_hello(msg, later_frames=len(msgs) - i - 1)  # type: ignore[arg-type]
             elif t is Config:
+                self._reconfigured = True
                 self._on_config(msg)  # type: ignore[arg-type]
             elif t is Stop:
                 self._on_stop()
@@ -379,6 +389,7 @@ class Firmware:
         """One timer period (see the module docstring for the order of operations). ``advance=False`` leaves
         step 5's plant integration to the caller's ``advance_plant()``, so a device sends the SAMPLE first (as
         the real firmware's DMA does) and the host does not see the simulator's compute time as link delay."""
+        self._reconfigured = False
         errors = self.decoder.errors
         if errors != self._rx_errors_seen:
             self._rx_errors_seen = errors

@@ -15,11 +15,26 @@ import os
 import select
 import threading
 import time
+from dataclasses import astuple, replace
 
 import pytest
 import serial
 
-from firmware_protocol import CommandFlags, Sample, Stop, encode, encode_command, make_hello, try_decode_frame
+from firmware_protocol import (
+    CommandFlags,
+    Config,
+    HelloAck,
+    Sample,
+    StatusFlags,
+    Stop,
+    StreamDecoder,
+    encode,
+    encode_command,
+    make_hello,
+    try_decode_frame,
+)
+from furuta_rt.runtime.hardware import SerialHardware
+from hil_mock import device as hil_device
 from hil_mock.config import build_config
 from hil_mock.device import VirtualDevice
 
@@ -172,8 +187,6 @@ def test_a_full_pty_hands_the_frames_the_compiled_round_could_not_write_to_the_b
     write comes back short, the bytes it left go to the Python loop's backlog (a SAMPLE cut mid-frame finished from
     there), frames beyond the backlog's bound are dropped and reported (TX_OVERFLOW). When the host reads again,
     every frame it gets is whole, in order, the drops are the device's count, and the C serves the rounds again."""
-    from firmware_protocol import StatusFlags, StreamDecoder
-
     cfg = build_config(device={"rate_hz": 1000, "pacing": "lockstep", "priority": "normal"})
     with VirtualDevice(cfg) as dev, serial.Serial(dev.port, timeout=0) as ser:
         fd, fw, dec = ser.fileno(), dev.firmware, StreamDecoder()
@@ -207,3 +220,113 @@ def test_a_full_pty_hands_the_frames_the_compiled_round_could_not_write_to_the_b
     assert seqs[-1] + 1 - len(seqs) == st.tx_frames_dropped > 0  # what is missing is what the device dropped
     assert any(s.status & StatusFlags.TX_OVERFLOW for s in samples)
     assert st.compiled_ticks > compiled_when_full + 500  # the backlog went out, the C serves again
+
+
+LONG_WAIT_S = 60.0
+"""The lockstep answer wait in the tests below: a frame that comes only after it never comes within FRAME_WAIT_S."""
+FRAME_WAIT_S = 20.0
+
+
+def frames_until_sample(fd: int, dec: StreamDecoder) -> list[object]:
+    """The frames the device sends up to and including its next SAMPLE (FRAME_WAIT_S at most)."""
+    got: list[object] = []
+    deadline = time.monotonic() + FRAME_WAIT_S
+    while not got or type(got[-1]) is not Sample:
+        left = deadline - time.monotonic()
+        assert left > 0, f"no SAMPLE within {FRAME_WAIT_S:g} s: {got}"
+        if select.select([fd], [], [], min(left, 0.5))[0]:
+            for m in dec.feed(os.read(fd, 65536)):
+                got.append(m)
+                if type(m) is Sample:
+                    break
+    return got
+
+
+def reconfiguring_host(ser: serial.Serial) -> list[tuple[object, ...]]:
+    """A host that leaves a SAMPLE unanswered and then (re)configures the session, three times: the CONFIG after the
+    handshake (SAMPLE 0 unanswered, as SerialHardware drops it), a CONFIG after 300 answered SAMPLEs (the compiled
+    round serving by then), a HELLO after 200 more (a new session). Every other SAMPLE is answered at once. Returns
+    every frame as (type name, fields), t_us from the first SAMPLE; each must come within FRAME_WAIT_S."""
+    fd, dec = ser.fileno(), StreamDecoder()
+    first, second = make_hello(), make_hello()
+    frames: list[object] = []
+
+    def answer(session: int, n: int) -> None:
+        for _ in range(n):
+            s = frames[-1]
+            assert type(s) is Sample
+            os.write(fd, encode_command(session, s.seq, counts(s.seq), CommandFlags.ENABLE))
+            frames.extend(frames_until_sample(fd, dec))
+
+    os.write(fd, b"\0" + encode(first))
+    frames.extend(frames_until_sample(fd, dec))
+    os.write(fd, encode(Config(rate_hz=1000, watchdog_ms=50)))  # SAMPLE 0 unanswered
+    frames.extend(frames_until_sample(fd, dec))
+    answer(first.nonce, 300)
+    os.write(fd, encode(Config(rate_hz=1000, watchdog_ms=40)))  # the last SAMPLE unanswered
+    frames.extend(frames_until_sample(fd, dec))
+    answer(first.nonce, 200)
+    os.write(fd, encode(second))  # the last SAMPLE unanswered; a new session
+    frames.extend(frames_until_sample(fd, dec))
+    answer(second.nonce, 100)
+    os.write(fd, encode(Stop(0)))
+    t0 = next(m.t_us for m in frames if type(m) is Sample)
+
+    def fields(m: object) -> tuple[object, ...]:
+        if type(m) is Sample:
+            return astuple(replace(m, t_us=m.t_us - t0))
+        if type(m) is HelloAck:  # the nonce is the host's, the firmware version the implementation's
+            return m.sample_rate_hz, m.watchdog_ms
+        return astuple(m)  # type: ignore[call-overload]
+
+    return [(type(m).__name__, *fields(m)) for m in frames]
+
+
+@pytest.fixture
+def long_lockstep_wait(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(hil_device, "LOCKSTEP_TIMEOUT_S", LONG_WAIT_S)
+
+
+@pytest.mark.usefixtures("long_lockstep_wait")
+def test_a_hello_or_config_ends_the_lockstep_wait_for_an_earlier_samples_answer() -> None:
+    """In lockstep a HELLO or a CONFIG from the host ends the device's wait for the COMMAND answering a SAMPLE sent
+    before it (a host that reconfigures the session does not answer it): the next SAMPLE follows at once — here
+    within FRAME_WAIT_S while the device would wait LONG_WAIT_S for the answer — and carries COMMAND_LATE, as after a
+    wait in vain. The compiled round (its wait in C) and the reference Python device send the same frames."""
+    runs = {}
+    for name, device in (("compiled", {}), ("reference", {"firmware": "python", "plant": "python"})):
+        cfg = build_config(device={"rate_hz": 1000, "pacing": "lockstep", "priority": "normal", "seed": 3, **device})
+        with VirtualDevice(cfg) as dev, serial.Serial(dev.port, timeout=0) as ser:
+            frames = reconfiguring_host(ser)
+            time.sleep(0.2)  # the device reads the STOP
+            dev.stop()
+        runs[name] = (frames, dev.stats)
+    (fast, fast_stats), (ref, ref_stats) = runs["compiled"], runs["reference"]
+    assert fast == ref
+    assert {k: getattr(fast_stats, k) for k in SAME_STATS} == {k: getattr(ref_stats, k) for k in SAME_STATS}
+    samples = [f for f in fast if f[0] == "Sample"]
+    late = [i for i, s in enumerate(samples) if s[-1] & StatusFlags.COMMAND_LATE]
+    assert len(samples) == 2 + 300 + 1 + 200 + 1 + 100
+    assert late == [1, 302]  # the SAMPLEs after the CONFIGs; a new session's SAMPLE 0 is never late
+    assert [s[1] for s in samples[:2]] == [0, 1] and samples[503][1] == 0  # seq: the HELLO restarted the session
+    kinds = [f[0] for f in fast]
+    assert kinds.count("HelloAck") == 2 and kinds.count("Status") >= 2
+    assert fast_stats.handshakes == 2 and fast_stats.commands_applied == 600
+    assert fast_stats.compiled_ticks > 300  # the C's wait saw the later CONFIG and the HELLO
+
+
+@pytest.mark.usefixtures("long_lockstep_wait")
+@pytest.mark.parametrize("firmware", ["c", "python"])
+def test_the_hosts_config_handshake_is_answered_at_once_by_a_lockstep_device(firmware: str) -> None:
+    """SerialHardware's handshake with a CONFIG (the HELLO_ACK's watchdog is not the one asked for) gets its STATUS at
+    once from a lockstep device waiting for the answer to SAMPLE 0, not after the device's answer wait (here far
+    beyond the host's CONFIG_TIMEOUT_S)."""
+    cfg = build_config(device={"rate_hz": 500, "pacing": "lockstep", "priority": "normal", "firmware": firmware})
+    with VirtualDevice(cfg) as dev:
+        hw = SerialHardware(dev.port)
+        try:
+            info = hw.handshake(500, 60)
+        finally:
+            hw.close()
+        assert info.watchdog_ms == 60 and dev.firmware.watchdog_ms == 60
+        assert dev.stats.samples_sent == 2  # SAMPLE 0, then SAMPLE 1 at the CONFIG

@@ -19,7 +19,7 @@ import dataclasses
 import re
 from pathlib import Path
 
-from firmware_protocol import Command, Hello, ResetCause, Sample, Stop, StreamDecoder
+from firmware_protocol import Command, Config, Hello, ResetCause, Sample, Stop, StreamDecoder
 from firmware_protocol.hostbuild import FIRMWARE_DIR, build_dir
 from furuta_rt.config import RigConfig
 from furuta_rt.model.rig import RigModel
@@ -164,6 +164,7 @@ class BoardFirmware(Firmware):
                 if self.streaming and msg.seq == self._last_sample and msg.session == self.session:  # type: ignore[attr-defined]
                     self._answered = True
             elif t is Hello:
+                self._reconfigured = True
                 if self.plant_start_ns is None:
                     self.plant_start_ns = self.clock_ns
                 elif not self.streaming:
@@ -175,13 +176,15 @@ class BoardFirmware(Firmware):
                 self._last_sample = None
             elif t is Stop:
                 self.streaming = False
+            elif t is Config:
+                self._reconfigured = True
         self.mcu.receive(data)
         self._after()
 
     def tick(self, advance: bool = True) -> None:
         if self._answered:
             self.commands_applied += 1
-        self._answered = False
+        self._answered = self._reconfigured = False
         now = self.clock_ns
         self.mcu.advance_to(now)
         self._after()

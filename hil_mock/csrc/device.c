@@ -46,6 +46,7 @@ enum {
     HIL_FRAMES = 16,     /* frames waiting in out */
     HIL_NO_NOISE = 32,   /* a reading found no noise draw left (the caller did not refill): the reading is wrong */
     HIL_SHAPE = 64,      /* the actuator's counts have no entry in the table yet: fill it, then hil_advance */
+    HIL_RECONFIGURED = 128, /* a HELLO or CONFIG arrived since the last tick: the lockstep wait is over */
 };
 #define HIL_NOISE_MARGIN 64u
 
@@ -78,6 +79,7 @@ typedef struct {
     int64_t plant_start_ns;         /* -1: held at its initial state until the first HELLO */
     int64_t substeps_done, pending;
     uint32_t sessions_seen, replacements;
+    uint32_t reconfigured;          /* a HELLO or CONFIG arrived since the last tick (Firmware.reconfigured) */
     /* the core after the last call: its clock, period and actuator counts */
     uint64_t clock_ns;
     uint32_t period_ns;
@@ -248,12 +250,21 @@ static uint32_t finish(hil_device_t *d, uint32_t status)
         d->noise_len - d->noise_pos < HIL_NOISE_MARGIN) {
         status |= HIL_NOISE_LOW;
     }
-    return status | (fw->streaming ? HIL_STREAMING : 0u) | (fw->answered ? HIL_ANSWERED : 0u);
+    return status | (fw->streaming ? HIL_STREAMING : 0u) | (fw->answered ? HIL_ANSWERED : 0u) |
+           (d->reconfigured ? HIL_RECONFIGURED : 0u);
 }
+
+/* HELLOs and CONFIGs the core received, from its counters: each HELLO counts a handshake (refused or not), each
+ * CONFIG sends a STATUS, and no other received frame sends one (the core's other STATUS are sent by its tick). */
+static uint32_t session_frames(const fw_t *fw) { return fw->n.handshakes + fw->n.handshakes_refused + fw->n.status_sent; }
 
 uint32_t hil_rx(hil_device_t *d, const uint8_t *data, size_t len)
 {
+    uint32_t before = session_frames(host_core(d->fw));
     host_rx(d->fw, data, len);
+    if (session_frames(host_core(d->fw)) != before) {
+        d->reconfigured = 1u;
+    }
     return finish(d, 0u);
 }
 
@@ -263,6 +274,7 @@ uint32_t hil_tick(hil_device_t *d, int advance_plant)
 {
     uint32_t status = 0u;
     int32_t r[3] = {0, 0, 0};
+    d->reconfigured = 0u;
     if (host_core(d->fw)->streaming) {
         if (d->params != NULL) {
             sense(d, r, &status);
@@ -396,10 +408,10 @@ uint32_t hil_lockstep(hil_device_t *d, hil_serve_t *s)
             s->drained = 0;
             return leave(d, s, HIL_AT_TOP, status, sticky);
         }
-        /* VirtualDevice._await_answer */
+        /* VirtualDevice._await_answer: until the COMMAND, or a HELLO or CONFIG after which none comes */
         int64_t until = monotonic_ns() + s->timeout_ns;
         drained = 0;
-        while (!host_core(d->fw)->answered) {
+        while (!host_core(d->fw)->answered && !d->reconfigured) {
             int64_t remaining = until - monotonic_ns();
             if (s->interrupt) {
                 s->until_ns = until;
