@@ -760,6 +760,7 @@ def test_missing_device_is_a_one_line_user_error() -> None:
         (["--mock", "--duration", "-1"], "--duration"),
         (["--port", "/dev/null", "--mock-effect", "arm_coulomb.Fc=0.3"], "only apply with --mock"),
         (["--mock", "--rate", "0"], "--rate"),
+        (["--mock", "--cpu", "4096"], "--cpu 4096: not a CPU this process may run on"),
         (["--port", "/dev/furuta-no-such-device", "--duration", "1"], "does not exist"),
         (["--mock", "--config", "/nonexistent.toml"], "does not exist"),
     ],

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -167,6 +168,14 @@ def _check_log_name(path: str) -> None:
                         f"furuta-rt convert LOG.mcap -o {Path(path).with_suffix('.csv').name})")
 
 
+def _check_cpu(cpu: int) -> None:
+    """--cpu names a CPU this process may run on (a typo would otherwise run the loop unpinned, with a warning)."""
+    allowed = sorted(os.sched_getaffinity(0))
+    if cpu not in allowed:
+        raise UserError(f"--cpu {cpu}: not a CPU this process may run on (allowed: "
+                        f"{', '.join(map(str, allowed))}); give one of them, or leave --cpu out")
+
+
 def run(args: argparse.Namespace) -> int:
     from furuta_rt.runtime.daemon import RunOptions, default_tui, run_daemon
 
@@ -180,6 +189,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--tui and --no-tui contradict each other; give one of them")
     if args.log is not None:
         _check_log_name(args.log)
+    if args.cpu is not None:
+        _check_cpu(args.cpu)
     claim_outputs([("--log", args.log), ("--summary-json", args.summary_json)], force=args.force)
     has_mock_opts = (args.mock_effect or args.mock_fault or args.mock_arg or args.mock_seed is not None
                      or args.mock_firmware is not None)
