@@ -160,6 +160,10 @@ def _watch_launcher(fd: int, on_gone: Callable[[], None]) -> None:
 
 
 def serve(args: argparse.Namespace) -> int:
+    if args.cpu is not None and args.cpu not in os.sched_getaffinity(0):
+        allowed = ", ".join(map(str, sorted(os.sched_getaffinity(0))))
+        raise UserError(f"--cpu {args.cpu}: not a CPU this process may run on (allowed: {allowed}); give one of them, "
+                        "or leave --cpu out")
     claim_outputs([("--stats-json", args.stats_json)], force=args.force)
     cfg = config_from_args(args)
     try:

@@ -276,7 +276,7 @@ def test_bad_mock_config(files: dict[str, Path], bad: str) -> None:
 
 
 @pytest.mark.parametrize("argv", [["--fault", "stall@soon"], ["--corrupt-rate", "2"], ["--rate", "0"],
-                                  ["--effect", "arm_coulomb.Fc=abc"], ["--effect", "warp_drive.x=1"]])
+                                  ["--effect", "arm_coulomb.Fc=abc"], ["--effect", "warp_drive.x=1"], ["--cpu", "4096"]])
 def test_bad_mock_options(argv: list[str]) -> None:
     rc, _, err = _call(mock_main, ["--pty", "--duration", "0.1", *argv])
     _check(rc, err)
