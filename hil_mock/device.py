@@ -110,6 +110,8 @@ class DeviceStats:
     cpu: int | None = None  # the CPU the device thread was pinned to (None: not pinned)
     pushes: int = 0
     compiled_ticks: int = 0  # ticks served by the compiled lockstep round (CFirmware.serve_lockstep)
+    clock_origin_s: float = 0.0  # the device clock's zero on time.perf_counter (CLOCK_MONOTONIC): in real-time pacing a
+    # SAMPLE's device time t is at clock_origin_s + t on this machine's clock (what a kernel trace is timed by)
 
     @property
     def realtime_factor(self) -> float:
@@ -645,6 +647,7 @@ class VirtualDevice:
             tx_bytes_dropped=link.tx_dropped,
             rx_bytes_corrupted=link.rx_corrupted,
             rx_bytes_dropped=link.rx_dropped,
+            clock_origin_s=self._t_start,
             wall_s=max(end - self._t_start, 0.0) if self._t_start else 0.0,
             plant_s=fw.plant_time,
             cpu_s=self._cpu_used(),

@@ -346,6 +346,7 @@ class DaemonRun:
     peak_rss_kb: int | None
     attribution: dict[str, Any]
     loadavg: list[float]
+    trace_attribution: dict[str, Any] | None = None  # the misses against a kernel trace of the loop's CPU (bench_trace)
 
     @property
     def misses(self) -> int:
@@ -384,11 +385,11 @@ the last allowed one, as furuta_rt.cpu_placement.pin_cpu chooses; None on a sing
 
 
 def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = True, foxglove_port: int | None = None,
-               cache: bool = True, cpu: int | None = LOOP_CPU) -> DaemonRun:
+               cache: bool = True, cpu: int | None = LOOP_CPU, trace: bool = False) -> DaemonRun:
     """Run the daemon against hil-mock (real-time pacing, over a pty, with an MCAP log unless ``log`` is
     False, serving the live view on ``foxglove_port`` if given, on one CPU with ``--cpu`` unless ``cpu`` is None),
-    sampled from outside. Cached unless ``cache`` is False: the closed-loop, logging and memory sections share a
-    run."""
+    sampled from outside; ``trace`` (with ``cpu`` and a log): a kernel trace of that CPU attributes the misses
+    (bench_trace). Cached unless ``cache`` is False: the closed-loop, logging and memory sections share a run."""
     key = (rate, seconds, log, foxglove_port, cpu)
     if cache and key in _RUNS:
         return _RUNS[key]
@@ -398,6 +399,11 @@ def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = Tru
                "--no-tui", "--summary-json", str(d / "summary.json"), "--mock-seed", "0",
                f"--mock-arg=--stats-json={d / 'mock.json'}", *(["--log", str(d / "run.mcap")] if log else []),
                *([f"--foxglove={foxglove_port}"] if foxglove_port else []), *(["--cpu", str(cpu)] if cpu is not None else [])]
+        from scripts.bench_trace import CpuTrace, attribute
+
+        tracer = CpuTrace(cpu, d / "trace.txt") if trace and cpu is not None and log else None
+        if tracer is not None:
+            tracer.__enter__()
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         ticking = threading.Event()
         err_lines: list[str] = []
@@ -445,6 +451,8 @@ def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = Tru
             time.sleep(sample_s)
         for t in threads:
             t.join(5.0)
+        if tracer is not None:
+            tracer.__exit__(None, None, None)
         window = max(t_last - t0, 1e-9)
         shares = {k: (last[k] - cpu0[k]) / window for k in pids if last[k] is not None and cpu0[k] is not None}
         try:
@@ -452,10 +460,15 @@ def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = Tru
         except (OSError, ValueError):
             raise RuntimeError(f"furuta-rt run exited {proc.returncode} without a summary: {''.join(err_lines)[-800:]}") from None
         mock = json.loads((d / "mock.json").read_text()) if (d / "mock.json").exists() else {}
+        traced: dict[str, Any] | None = None
+        if tracer is not None:
+            traced = {"available": tracer.ok, "why_not": tracer.why}
+            if tracer.ok and "clock_origin_s" in mock:
+                traced |= attribute(d / "run.mcap", d / "trace.txt", cpu, mock["clock_origin_s"], rate)
         run = DaemonRun(rate, seconds, proc.returncode, summary, mock, shares,
                         (busy1 - busy0) / max(total1 - total0, 1), (steal1 - steal0) / max(total1 - total0, 1),
                         rss, lrss, mrss, peak, attribute_misses(d / "run.mcap", rate) if log else {},
-                        [round(x, 2) for x in os.getloadavg()])
+                        [round(x, 2) for x in os.getloadavg()], traced)
     if cache:
         _RUNS[key] = run
     return run
@@ -725,8 +738,9 @@ def bench_closed_loop(quick: bool) -> dict[str, Any]:
     """`furuta-rt run --mock --log --cpu N` at 1 kHz against hil-mock (another process, real-time pacing, over a
     pty); a rate sweep; the machine's own limits (probes) and the attribution of the misses; the comparison with the
     bare pair on one CPU and, for reference, with no CPU given (where the scheduler puts the processes)."""
-    main = daemon_run(1000, 60.0)  # shared with the logging and memory sections
-    out: dict[str, Any] = {"cpu": LOOP_CPU, "at_1kHz": main.figures(), "attribution_1kHz": main.attribution}
+    main = daemon_run(1000, 60.0, trace=True)  # shared with the logging and memory sections
+    out: dict[str, Any] = {"cpu": LOOP_CPU, "at_1kHz": main.figures(), "attribution_1kHz": main.attribution,
+                           "kernel_trace_1kHz": main.trace_attribution}
     out["target"] = f"< {MISS_TARGET_PERCENT}% misses at 1 kHz, or within {MISS_TARGET_PERCENT} points of the bare pair's"
     probe_s = 3.0 if quick else 60.0
     out["probes_1kHz"] = {kind: probe(kind, 1000, probe_s) for kind in ("wake", "socketpair", "pty")}
@@ -1353,6 +1367,15 @@ def table(res: dict[str, Any]) -> list[dict[str, Any]]:
                 "within 0.1 points or < 0.1%" if headline else "", c["met"] if headline else None)
         row("closed loop 1 kHz: latency sample→command p50 / p99", f"{a['latency_p50_us']:.0f} / {a['latency_p99_us']:.0f} µs",
             "period 1000 µs", f"{100 * a['latency_p50_fraction']:.0f}% / {100 * a['latency_p99_fraction']:.0f}%")
+        kt = c.get("kernel_trace_1kHz")
+        if kt and kt.get("miss_windows") is not None:
+            row(f"closed loop 1 kHz: misses during which the loop's CPU {c['cpu']} did not run (kernel trace: no event for "
+                f"≥ {kt['silence_threshold_us']:.0f} µs while a task it woke waited)",
+                f"{kt['with_cpu_silence']} of {kt['miss_windows']}",
+                f"{kt['silences_in_run']} such silences in the run, {kt['silence_total_ms']:.0f} ms in all, longest "
+                f"{kt['silence_longest_ms']:.1f} ms", f"{kt['without']} misses without one")
+        elif kt:
+            row("closed loop 1 kHz: kernel trace of the misses", "not taken", kt.get("why_not", ""), "")
         at = c["attribution_1kHz"]
         if at and a["misses"]:
             row("closed loop 1 kHz: why the misses (the run's own log)",

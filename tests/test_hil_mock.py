@@ -117,6 +117,25 @@ def test_done_when_in_process():
     assert not dev.running
 
 
+def test_a_samples_device_time_maps_onto_this_machines_clock():
+    """``clock_origin_s``: in real-time pacing SAMPLE k is taken at clock_origin_s + t_k on time.perf_counter's clock
+    (CLOCK_MONOTONIC, the clock a kernel trace can use), so it reaches the host after that instant, never before,
+    and, read as it comes, within a few periods of it."""
+    cfg = build_config(device={"rate_hz": 500, "initial_theta": 0.0})
+    with VirtualDevice(cfg) as dev, MiniHost(dev.port) as host:
+        host.handshake()
+        arrivals: list[tuple[float, int]] = []
+        while len(arrivals) < 200:
+            s = host.next_sample(timeout=2.0)
+            assert s is not None
+            arrivals.append((time.perf_counter(), s.t_us))
+            answer(host, s, 0.0)
+        origin = dev.stats.clock_origin_s
+    delays = sorted(arrived - (origin + t_us * 1e-6) for arrived, t_us in arrivals)
+    assert delays[0] > 0.0, f"a SAMPLE arrived {-delays[0] * 1e3:.3f} ms before its tick: the origin is wrong"
+    assert delays[len(delays) // 2] < 0.05, f"median delay {delays[len(delays) // 2]:.3f} s: the origin is wrong"
+
+
 def lockstep_thetas(port: str, rig: object) -> list[float]:
     """The controller against a lockstep mock on ``port`` for 200 SAMPLEs; the θ it measured."""
     ctrl = Controller.from_rig(rig)

@@ -1,0 +1,151 @@
+"""Which 1 kHz misses were the machine's: a kernel trace of the loop's CPU laid over the run's own ticks.
+
+With `run --cpu N` everything a SAMPLE → COMMAND round trip waits for runs on CPU N: the loop, hil-mock's device
+thread and the kernel's tty work. While it runs, an ftrace instance of its own records that CPU's scheduling events
+(sched_switch, sched_waking) on CLOCK_MONOTONIC, streamed to a file. A woken task on a CPU that is otherwise idle or
+busy with our few-µs ticks runs within microseconds; when the CPU records no event at all for longer than
+``SILENCE_S`` while a task it woke is waiting to run, the CPU was not running — on a virtual machine, the hypervisor
+had descheduled it. Each miss of the run (its log's COMMAND_LATE ticks, and the periods hil-mock skipped) is a window
+of device time, mapped onto the same clock by hil-mock's ``clock_origin_s``; a miss whose window holds such a silence
+is the machine's, the others are left to the stack.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+TRACEFS = Path("/sys/kernel/tracing")
+INSTANCE = "furuta-bench"
+SILENCE_S = 300e-6
+"""A CPU that records nothing for this long while a task it woke waits has not been running: our ticks' pieces (the
+device's tick, the kworker's flush, the host's update) each take tens of µs, and a woken task runs at once."""
+_LINE = re.compile(r"\[(\d+)\]\s+\S+\s+(\d+\.\d+): (sched_switch|sched_waking): (.*)$")
+
+
+class CpuTrace:
+    """Record one CPU's scheduling events to ``path`` while the context is open; ``ok`` says whether it could
+    (root and tracefs needed; nothing is traced otherwise)."""
+
+    def __init__(self, cpu: int, path: Path) -> None:
+        self.cpu, self.path = cpu, path
+        self.ok = False
+        self.why = ""
+        self._dir = TRACEFS / "instances" / INSTANCE
+        self._reader: threading.Thread | None = None
+
+    def _write(self, name: str, value: str) -> None:
+        (self._dir / name).write_text(value)
+
+    def __enter__(self) -> CpuTrace:
+        try:
+            with contextlib.suppress(FileNotFoundError):  # left by a bench that was killed
+                self._dir.rmdir()
+            self._dir.mkdir()
+            self._write("tracing_on", "0")
+            self._write("trace_clock", "mono")
+            self._write("buffer_size_kb", "8192")
+            self._write("tracing_cpumask", format(1 << self.cpu, "x"))
+            for event in ("sched/sched_switch", "sched/sched_waking"):
+                self._write(f"events/{event}/enable", "1")
+            self._write("tracing_on", "1")
+        except OSError as err:
+            self.why = f"no kernel trace ({err.strerror or err}: needs root and tracefs)"
+            self._remove()
+            return self
+        self.ok = True
+        self._reader = threading.Thread(target=self._stream, name="bench trace", daemon=True)
+        self._reader.start()
+        return self
+
+    def _stream(self) -> None:
+        others = os.sched_getaffinity(0) - {self.cpu}
+        if others:  # the reader's wake-ups must not compete with the traced CPU's work
+            os.sched_setaffinity(0, others)
+        with open(self._dir / "trace_pipe", "rb", buffering=0) as pipe, open(self.path, "wb") as out:
+            while True:
+                try:
+                    chunk = pipe.read(1 << 16)
+                except OSError:
+                    return
+                if not chunk:
+                    return
+                out.write(chunk)
+
+    def __exit__(self, *exc: object) -> None:
+        if not self.ok:
+            return
+        with contextlib.suppress(OSError):
+            self._write("tracing_on", "0")
+        self._remove()  # the instance's removal ends the reader's read
+        if self._reader is not None:
+            self._reader.join(10.0)
+
+    def _remove(self) -> None:
+        with contextlib.suppress(OSError):
+            for event in ("sched/sched_switch", "sched/sched_waking"):
+                self._write(f"events/{event}/enable", "0")
+        for _ in range(50):  # busy while the reader still holds trace_pipe open
+            try:
+                self._dir.rmdir()
+                return
+            except FileNotFoundError:
+                return
+            except OSError:
+                threading.Event().wait(0.1)
+
+
+def silences(path: Path, cpu: int, min_s: float = SILENCE_S) -> np.ndarray:
+    """(start, end) pairs, monotonic seconds, of the stretches ≥ ``min_s`` in which ``cpu`` recorded no event while a
+    task it had woken waited to run."""
+    out: list[tuple[float, float]] = []
+    last = None
+    waiting = False
+    with open(path, "rb") as f:
+        for raw in f:
+            m = _LINE.search(raw.decode(errors="replace"))
+            if m is None or int(m.group(1)) != cpu:
+                continue
+            t = float(m.group(2))
+            if waiting and last is not None and t - last >= min_s:
+                out.append((last, t))
+            last = t
+            if m.group(3) == "sched_waking":
+                waiting = waiting or f"target_cpu={cpu:03d}" in m.group(4)
+            else:
+                waiting = False
+    return np.array(out, dtype=float).reshape(-1, 2)
+
+
+def attribute(log_path: Path, trace_path: Path, cpu: int, clock_origin_s: float, rate: float) -> dict[str, Any]:
+    """The run's misses, each the window of device time from the SAMPLE it concerns to the next tick (a COMMAND_LATE
+    on tick k+1 is about SAMPLE k; a jump of the device's clock is hil-mock's skipped periods), mapped onto the
+    monotonic clock; how many of them hold a silence of the loop's CPU (``silences``)."""
+    from firmware_protocol import StatusFlags
+    from furuta_rt.io.mcap_read import read_log
+
+    ticks = read_log(log_path, timing=False, events=False).ticks
+    t = clock_origin_s + np.asarray(ticks["t"], dtype=float)
+    period = 1.0 / rate
+    late = np.flatnonzero((np.asarray(ticks["status"]) & int(StatusFlags.COMMAND_LATE))[1:] != 0)
+    skipped = np.flatnonzero(np.diff(t) > 1.5 * period)
+    windows = [(t[k], t[k + 1]) for k in (*late, *skipped)]
+    gaps = silences(trace_path, cpu)
+    starts, ends = (gaps[:, 0], gaps[:, 1]) if len(gaps) else (np.array([]), np.array([]))
+    explained = 0
+    for a, b in windows:
+        if np.any((starts < b) & (ends > a - 0.2 * period)):  # a silence overlapping the window (or just before it)
+            explained += 1
+    span = (t[0], t[-1]) if len(t) else (0.0, 0.0)
+    inside = (starts >= span[0]) & (ends <= span[1])
+    return {"miss_windows": len(windows), "with_cpu_silence": explained, "without": len(windows) - explained,
+            "silences_in_run": int(np.sum(inside)),
+            "silence_total_ms": float(np.sum(ends[inside] - starts[inside]) * 1e3),
+            "silence_longest_ms": float(np.max(ends[inside] - starts[inside]) * 1e3) if np.any(inside) else 0.0,
+            "silence_threshold_us": SILENCE_S * 1e6}
