@@ -1371,7 +1371,7 @@ def table(res: dict[str, Any]) -> list[dict[str, Any]]:
         if kt and kt.get("miss_windows") is not None:
             row(f"closed loop 1 kHz: misses during which the loop's CPU {c['cpu']} did not run (kernel trace: no event for "
                 f"≥ {kt['silence_threshold_us']:.0f} µs while a task it woke waited)",
-                f"{kt['with_cpu_silence']} of {kt['miss_windows']}",
+                f"{kt['with_cpu_silence']} of {kt['miss_windows']} ({kt.get('of_them_at_a_deadline', 0)} at a deadline)",
                 f"{kt['silences_in_run']} such silences in the run, {kt['silence_total_ms']:.0f} ms in all, longest "
                 f"{kt['silence_longest_ms']:.1f} ms", f"{kt['without']} misses without one")
         elif kt:

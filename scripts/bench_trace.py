@@ -5,9 +5,11 @@ thread and the kernel's tty work. While it runs, an ftrace instance of its own r
 (sched_switch, sched_waking) on CLOCK_MONOTONIC, streamed to a file. A woken task on a CPU that is otherwise idle or
 busy with our few-µs ticks runs within microseconds; when the CPU records no event at all for longer than
 ``SILENCE_S`` while a task it woke is waiting to run, the CPU was not running — on a virtual machine, the hypervisor
-had descheduled it. Each miss of the run (its log's COMMAND_LATE ticks, and the periods hil-mock skipped) is a window
-of device time, mapped onto the same clock by hil-mock's ``clock_origin_s``; a miss whose window holds such a silence
-is the machine's, the others are left to the stack.
+had descheduled it. The same holds at each of the device's deadlines: its timer fires there (the CPU records the
+wake-up), so a CPU that records nothing from just before a deadline to ``SILENCE_S`` after it was not running either.
+Each miss of the run (its log's COMMAND_LATE ticks, and the periods hil-mock skipped) is a window of device time,
+mapped onto the same clock by hil-mock's ``clock_origin_s``; a miss whose window holds either kind of silence is the
+machine's, the others are left to the stack.
 """
 
 from __future__ import annotations
@@ -101,26 +103,41 @@ class CpuTrace:
                 threading.Event().wait(0.1)
 
 
-def silences(path: Path, cpu: int, min_s: float = SILENCE_S) -> np.ndarray:
-    """(start, end) pairs, monotonic seconds, of the stretches ≥ ``min_s`` in which ``cpu`` recorded no event while a
-    task it had woken waited to run."""
-    out: list[tuple[float, float]] = []
-    last = None
+def read_events(path: Path, cpu: int) -> tuple[np.ndarray, np.ndarray]:
+    """The times (monotonic s) of ``cpu``'s events, and for each whether a task it had woken was waiting to run just
+    after it (set by a sched_waking aimed at ``cpu``, cleared by the next sched_switch)."""
+    times: list[float] = []
+    waiting_after: list[bool] = []
     waiting = False
     with open(path, "rb") as f:
         for raw in f:
             m = _LINE.search(raw.decode(errors="replace"))
             if m is None or int(m.group(1)) != cpu:
                 continue
-            t = float(m.group(2))
-            if waiting and last is not None and t - last >= min_s:
-                out.append((last, t))
-            last = t
             if m.group(3) == "sched_waking":
                 waiting = waiting or f"target_cpu={cpu:03d}" in m.group(4)
             else:
                 waiting = False
-    return np.array(out, dtype=float).reshape(-1, 2)
+            times.append(float(m.group(2)))
+            waiting_after.append(waiting)
+    return np.array(times), np.array(waiting_after, dtype=bool)
+
+
+def silences(path: Path, cpu: int, min_s: float = SILENCE_S) -> np.ndarray:
+    """(start, end) pairs, monotonic seconds, of the stretches ≥ ``min_s`` in which ``cpu`` recorded no event while a
+    task it had woken waited to run."""
+    t, waiting = read_events(path, cpu)
+    gap = np.flatnonzero(waiting[:-1] & (np.diff(t) >= min_s))
+    return np.column_stack([t[gap], t[gap + 1]]) if len(gap) else np.zeros((0, 2))
+
+
+def deadline_silences(events: np.ndarray, deadlines: np.ndarray, min_s: float = SILENCE_S,
+                      early_s: float = 150e-6) -> np.ndarray:
+    """Whether the CPU recorded nothing from ``early_s`` before each deadline to ``min_s`` after it (the device's
+    timer, set to wake it shortly before the deadline, could not fire: the CPU was not running)."""
+    i = np.searchsorted(events, deadlines - early_s)
+    nxt = np.where(i < len(events), events[np.minimum(i, len(events) - 1)], np.inf)
+    return nxt - deadlines >= min_s
 
 
 def attribute(log_path: Path, trace_path: Path, cpu: int, clock_origin_s: float, rate: float) -> dict[str, Any]:
@@ -136,15 +153,22 @@ def attribute(log_path: Path, trace_path: Path, cpu: int, clock_origin_s: float,
     late = np.flatnonzero((np.asarray(ticks["status"]) & int(StatusFlags.COMMAND_LATE))[1:] != 0)
     skipped = np.flatnonzero(np.diff(t) > 1.5 * period)
     windows = [(t[k], t[k + 1]) for k in (*late, *skipped)]
-    gaps = silences(trace_path, cpu)
-    starts, ends = (gaps[:, 0], gaps[:, 1]) if len(gaps) else (np.array([]), np.array([]))
-    explained = 0
+    events, waiting = read_events(trace_path, cpu)
+    gap = np.flatnonzero(waiting[:-1] & (np.diff(events) >= SILENCE_S))
+    starts, ends = events[gap], events[gap + 1]
+    explained = at_deadline = 0
     for a, b in windows:
         if np.any((starts < b) & (ends > a - 0.2 * period)):  # a silence overlapping the window (or just before it)
             explained += 1
+            continue
+        deadlines = a + period * np.arange(0, round((b - a) / period) + 1)
+        if np.any(deadline_silences(events, deadlines)):
+            explained += 1
+            at_deadline += 1
     span = (t[0], t[-1]) if len(t) else (0.0, 0.0)
     inside = (starts >= span[0]) & (ends <= span[1])
-    return {"miss_windows": len(windows), "with_cpu_silence": explained, "without": len(windows) - explained,
+    return {"miss_windows": len(windows), "with_cpu_silence": explained, "of_them_at_a_deadline": at_deadline,
+            "without": len(windows) - explained,
             "silences_in_run": int(np.sum(inside)),
             "silence_total_ms": float(np.sum(ends[inside] - starts[inside]) * 1e3),
             "silence_longest_ms": float(np.max(ends[inside] - starts[inside]) * 1e3) if np.any(inside) else 0.0,
