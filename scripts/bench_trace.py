@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import select
 import threading
 from pathlib import Path
 from typing import Any
@@ -41,6 +42,7 @@ class CpuTrace:
         self.why = ""
         self._dir = TRACEFS / "instances" / INSTANCE
         self._reader: threading.Thread | None = None
+        self._done = threading.Event()
 
     def _write(self, name: str, value: str) -> None:
         (self._dir / name).write_text(value)
@@ -70,24 +72,37 @@ class CpuTrace:
         others = os.sched_getaffinity(0) - {self.cpu}
         if others:  # the reader's wake-ups must not compete with the traced CPU's work
             os.sched_setaffinity(0, others)
-        with open(self._dir / "trace_pipe", "rb", buffering=0) as pipe, open(self.path, "wb") as out:
-            while True:
-                try:
-                    chunk = pipe.read(1 << 16)
-                except OSError:
-                    return
-                if not chunk:
-                    return
-                out.write(chunk)
+        fd = os.open(self._dir / "trace_pipe", os.O_RDONLY | os.O_NONBLOCK)  # a blocking read never returns once
+        # tracing stops, and holds the instance busy
+        poller = select.poll()
+        poller.register(fd, select.POLLIN)
+        try:
+            with open(self.path, "wb") as out:
+                while True:
+                    poller.poll(100)
+                    try:
+                        chunk = os.read(fd, 1 << 16)
+                    except BlockingIOError:
+                        if self._done.is_set():
+                            return
+                        continue
+                    except OSError:
+                        return
+                    if not chunk and self._done.is_set():
+                        return
+                    out.write(chunk)
+        finally:
+            os.close(fd)
 
     def __exit__(self, *exc: object) -> None:
         if not self.ok:
             return
         with contextlib.suppress(OSError):
             self._write("tracing_on", "0")
-        self._remove()  # the instance's removal ends the reader's read
+        self._done.set()  # the reader drains what is buffered, then closes the pipe
         if self._reader is not None:
-            self._reader.join(10.0)
+            self._reader.join(30.0)
+        self._remove()
 
     def _remove(self) -> None:
         with contextlib.suppress(OSError):
