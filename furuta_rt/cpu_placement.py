@@ -23,6 +23,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from furuta_rt.errors import UserError
+
 WORKQUEUE_CPUMASK = Path("/sys/devices/virtual/workqueue/cpumask")
 STATE_FILE = Path("/run/furuta-rt/unbound-work-cpumask")
 
@@ -44,6 +46,14 @@ def pin_cpu(cpu: int | None = None) -> tuple[int | None, str | None]:
     except OSError as err:
         return None, f"cannot pin to CPU {cpu} ({err.strerror}); not pinned"
     return cpu, None
+
+
+def check_cpu_option(cpu: int) -> None:
+    """``--cpu N`` names a CPU this process may run on; UserError otherwise (a typo would run the thread unpinned)."""
+    allowed = sorted(os.sched_getaffinity(0))
+    if cpu not in allowed:
+        raise UserError(f"--cpu {cpu}: not a CPU this process may run on (allowed: "
+                        f"{', '.join(map(str, allowed))}); give one of them, or leave --cpu out")
 
 
 def cpu_mask(cpus: set[int]) -> str:

@@ -22,6 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from firmware_protocol.hostbuild import BuildError
+from furuta_rt.cpu_placement import check_cpu_option
 from furuta_rt.errors import OneLineParser, UserError
 from furuta_rt.io.output import claim_outputs, write_text
 from furuta_rt.tomlfile import read_toml
@@ -160,10 +161,8 @@ def _watch_launcher(fd: int, on_gone: Callable[[], None]) -> None:
 
 
 def serve(args: argparse.Namespace) -> int:
-    if args.cpu is not None and args.cpu not in os.sched_getaffinity(0):
-        allowed = ", ".join(map(str, sorted(os.sched_getaffinity(0))))
-        raise UserError(f"--cpu {args.cpu}: not a CPU this process may run on (allowed: {allowed}); give one of them, "
-                        "or leave --cpu out")
+    if args.cpu is not None:
+        check_cpu_option(args.cpu)
     claim_outputs([("--stats-json", args.stats_json)], force=args.force)
     cfg = config_from_args(args)
     try:

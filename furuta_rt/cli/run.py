@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 from pathlib import Path
 from typing import Any
 
 from furuta_rt.cli._common import add_config_argument, add_force_argument, parse_gains, rig_from_args
 from furuta_rt.config import COMP_MODES, RigConfig
+from furuta_rt.cpu_placement import check_cpu_option
 from furuta_rt.errors import UserError
 from furuta_rt.io.output import claim_outputs
 
@@ -168,14 +168,6 @@ def _check_log_name(path: str) -> None:
                         f"furuta-rt convert LOG.mcap -o {Path(path).with_suffix('.csv').name})")
 
 
-def _check_cpu(cpu: int) -> None:
-    """--cpu names a CPU this process may run on (a typo would otherwise run the loop unpinned, with a warning)."""
-    allowed = sorted(os.sched_getaffinity(0))
-    if cpu not in allowed:
-        raise UserError(f"--cpu {cpu}: not a CPU this process may run on (allowed: "
-                        f"{', '.join(map(str, allowed))}); give one of them, or leave --cpu out")
-
-
 def run(args: argparse.Namespace) -> int:
     from furuta_rt.runtime.daemon import RunOptions, default_tui, run_daemon
 
@@ -190,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     if args.log is not None:
         _check_log_name(args.log)
     if args.cpu is not None:
-        _check_cpu(args.cpu)
+        check_cpu_option(args.cpu)
     claim_outputs([("--log", args.log), ("--summary-json", args.summary_json)], force=args.force)
     has_mock_opts = (args.mock_effect or args.mock_fault or args.mock_arg or args.mock_seed is not None
                      or args.mock_firmware is not None)
