@@ -393,7 +393,7 @@ def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = Tru
     key = (rate, seconds, log, foxglove_port, cpu)
     if cache and key in _RUNS:
         return _RUNS[key]
-    with tempfile.TemporaryDirectory(prefix="furuta-bench-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="furuta-bench-") as tmp, contextlib.ExitStack() as tracing:
         d = Path(tmp)
         cmd = [*FURUTA_RT, "run", "--mock", "--rate", str(rate), "--duration", f"{seconds:g}",
                "--no-tui", "--summary-json", str(d / "summary.json"), "--mock-seed", "0",
@@ -401,9 +401,7 @@ def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = Tru
                *([f"--foxglove={foxglove_port}"] if foxglove_port else []), *(["--cpu", str(cpu)] if cpu is not None else [])]
         from scripts.bench_trace import CpuTrace, attribute
 
-        tracer = CpuTrace(cpu, d / "trace.txt") if trace and cpu is not None and log else None
-        if tracer is not None:
-            tracer.__enter__()
+        tracer = tracing.enter_context(CpuTrace(cpu, d / "trace.txt")) if trace and cpu is not None and log else None
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         ticking = threading.Event()
         err_lines: list[str] = []
@@ -451,8 +449,7 @@ def daemon_run(rate: int, seconds: float, sample_s: float = 1.0, log: bool = Tru
             time.sleep(sample_s)
         for t in threads:
             t.join(5.0)
-        if tracer is not None:
-            tracer.__exit__(None, None, None)
+        tracing.close()  # the trace covers the run, no more (and stops however the run ends)
         window = max(t_last - t0, 1e-9)
         shares = {k: (last[k] - cpu0[k]) / window for k in pids if last[k] is not None and cpu0[k] is not None}
         try:
@@ -527,14 +524,27 @@ def _fifo(priority: int = 50) -> bool:
         return False
 
 
-def _pin(cpu: int | None) -> None:
-    if cpu is not None:
-        os.sched_setaffinity(0, {cpu})
+@contextlib.contextmanager
+def on_cpu(cpu: int | None) -> Any:
+    """This process (and what it forks or starts: hil-mock, the bare pairs' sides) on ``cpu`` with the kernel's unbound
+    work, as `furuta-rt run --cpu` places the loop; nothing when ``cpu`` is None."""
+    if cpu is None:
+        yield
+        return
+    from furuta_rt.cpu_placement import confine_unbound_work
+
+    before = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {cpu})
+    confined, _ = confine_unbound_work(cpu)
+    try:
+        yield
+    finally:
+        if confined is not None:
+            confined.restore()
+        os.sched_setaffinity(0, before)
 
 
-def _device_side(conn: Any, fd: int | None, period_ns: int, seconds: float, work_ns: int, spin_ns: int = 0,
-                 cpu: int | None = None) -> None:
-    _pin(cpu)
+def _device_side(conn: Any, fd: int | None, period_ns: int, seconds: float, work_ns: int, spin_ns: int = 0) -> None:
     fifo = _fifo()
     pc = time.perf_counter_ns
     periods = missed = 0
@@ -582,9 +592,8 @@ def _device_side(conn: Any, fd: int | None, period_ns: int, seconds: float, work
                "cpu_ns": cpu_ns})
 
 
-def _host_side(fd: int, other_fd: int, work_ns: int, after_ns: int, conn: Any, cpu: int | None = None) -> None:
+def _host_side(fd: int, other_fd: int, work_ns: int, after_ns: int, conn: Any) -> None:
     os.close(other_fd)  # the device's end, inherited: closed here, the device's close hangs the link up
-    _pin(cpu)
     _fifo()
     answers = 0
     cpu0 = time.process_time_ns()
@@ -619,48 +628,35 @@ def probe(kind: str, rate: int, seconds: float, device_work_us: float = 0.0, hos
     ``device_spin_us`` before each deadline and burns ``device_work_us`` before it writes; the host burns
     ``host_work_us`` before it answers and ``host_after_us`` after. Each side's CPU per period is reported.
     ``cpu``: both sides and the kernel's unbound work (the pty's flush work) on that CPU, as `run --cpu` places the
-    daemon."""
-    if cpu is None:
-        return _probe(kind, rate, seconds, device_work_us, host_work_us, device_spin_us, host_after_us, None)
-    from furuta_rt.cpu_placement import confine_unbound_work
-
-    confined, _ = confine_unbound_work(cpu)
-    try:
-        return _probe(kind, rate, seconds, device_work_us, host_work_us, device_spin_us, host_after_us, cpu)
-    finally:
-        if confined is not None:
-            confined.restore()
-
-
-def _probe(kind: str, rate: int, seconds: float, device_work_us: float, host_work_us: float, device_spin_us: float,
-           host_after_us: float, cpu: int | None) -> dict[str, Any]:
-    ctx = multiprocessing.get_context("fork")
-    recv, send = ctx.Pipe(duplex=False)
-    host_recv, host_send = ctx.Pipe(duplex=False)
-    host = None
-    dev_fd = None
-    if kind != "wake":
-        dev_fd, host_fd = _open_link(kind)
-        os.set_blocking(dev_fd, False)
-        host = ctx.Process(target=_host_side, args=(host_fd, dev_fd, round(host_work_us * 1000),
-                                                    round(host_after_us * 1000), host_send, cpu))
-        host.start()
-        os.close(host_fd)
-    dev = ctx.Process(target=_device_side, args=(send, dev_fd, round(1e9 / rate), seconds, round(device_work_us * 1000),
-                                                 round(device_spin_us * 1000), cpu))
-    dev.start()
-    if dev_fd is not None:
-        os.close(dev_fd)
-    r = recv.recv()
-    dev.join(5.0)
-    host_cpu_us = None
-    if host is not None:
-        if host_recv.poll(5.0):
-            h = host_recv.recv()
-            host_cpu_us = h["cpu_ns"] / 1000.0 / max(h["answers"], 1)
-        host.join(5.0)
-        if host.is_alive():
-            host.terminate()
+    daemon (both sides are forked here: they start on it)."""
+    with on_cpu(cpu):
+        ctx = multiprocessing.get_context("fork")
+        recv, send = ctx.Pipe(duplex=False)
+        host_recv, host_send = ctx.Pipe(duplex=False)
+        host = None
+        dev_fd = None
+        if kind != "wake":
+            dev_fd, host_fd = _open_link(kind)
+            os.set_blocking(dev_fd, False)
+            host = ctx.Process(target=_host_side, args=(host_fd, dev_fd, round(host_work_us * 1000),
+                                                        round(host_after_us * 1000), host_send))
+            host.start()
+            os.close(host_fd)
+        dev = ctx.Process(target=_device_side, args=(send, dev_fd, round(1e9 / rate), seconds, round(device_work_us * 1000),
+                                                     round(device_spin_us * 1000)))
+        dev.start()
+        if dev_fd is not None:
+            os.close(dev_fd)
+        r = recv.recv()
+        dev.join(5.0)
+        host_cpu_us = None
+        if host is not None:
+            if host_recv.poll(5.0):
+                h = host_recv.recv()
+                host_cpu_us = h["cpu_ns"] / 1000.0 / max(h["answers"], 1)
+            host.join(5.0)
+            if host.is_alive():
+                host.terminate()
     period = 1e6 / rate
     out: dict[str, Any] = {"fifo": r["fifo"], "periods": r["periods"], "missed": r["missed"],
                            "miss_percent": 100.0 * r["missed"] / max(r["periods"], 1),
@@ -852,26 +848,6 @@ def link_ceiling(kind: str, spin: bool, rate: int, seconds: float) -> dict[str, 
     os.close(dev_fd)
     os.waitpid(pid, 0)
     return {"round_trip_us": wall / trips * 1e6, "real_time_factor": trips / rate / wall}
-
-
-@contextlib.contextmanager
-def on_cpu(cpu: int | None) -> Any:
-    """This process (and what it forks or starts: hil-mock, the bare pairs' sides) on ``cpu`` with the kernel's unbound
-    work, as `furuta-rt run --cpu` places the loop; nothing when ``cpu`` is None."""
-    if cpu is None:
-        yield
-        return
-    from furuta_rt.cpu_placement import confine_unbound_work
-
-    before = os.sched_getaffinity(0)
-    os.sched_setaffinity(0, {cpu})
-    confined, _ = confine_unbound_work(cpu)
-    try:
-        yield
-    finally:
-        if confined is not None:
-            confined.restore()
-        os.sched_setaffinity(0, before)
 
 
 @section("mock")

@@ -138,12 +138,11 @@ def read_events(path: Path, cpu: int) -> tuple[np.ndarray, np.ndarray]:
     return np.array(times), np.array(waiting_after, dtype=bool)
 
 
-def silences(path: Path, cpu: int, min_s: float = SILENCE_S) -> np.ndarray:
-    """(start, end) pairs, monotonic seconds, of the stretches ≥ ``min_s`` in which ``cpu`` recorded no event while a
-    task it had woken waited to run."""
-    t, waiting = read_events(path, cpu)
-    gap = np.flatnonzero(waiting[:-1] & (np.diff(t) >= min_s))
-    return np.column_stack([t[gap], t[gap + 1]]) if len(gap) else np.zeros((0, 2))
+def waiting_silences(events: np.ndarray, waiting: np.ndarray, min_s: float = SILENCE_S) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, ends), monotonic seconds, of the stretches ≥ ``min_s`` in which the CPU recorded no event while a task
+    it had woken waited to run (``read_events``)."""
+    gap = np.flatnonzero(waiting[:-1] & (np.diff(events) >= min_s))
+    return events[gap], events[gap + 1]
 
 
 def deadline_silences(events: np.ndarray, deadlines: np.ndarray, min_s: float = SILENCE_S,
@@ -158,7 +157,8 @@ def deadline_silences(events: np.ndarray, deadlines: np.ndarray, min_s: float = 
 def attribute(log_path: Path, trace_path: Path, cpu: int, clock_origin_s: float, rate: float) -> dict[str, Any]:
     """The run's misses, each the window of device time from the SAMPLE it concerns to the next tick (a COMMAND_LATE
     on tick k+1 is about SAMPLE k; a jump of the device's clock is hil-mock's skipped periods), mapped onto the
-    monotonic clock; how many of them hold a silence of the loop's CPU (``silences``)."""
+    monotonic clock; how many of them hold a silence of the loop's CPU (``waiting_silences``,
+    ``deadline_silences``)."""
     from firmware_protocol import StatusFlags
     from furuta_rt.io.mcap_read import read_log
 
@@ -169,8 +169,7 @@ def attribute(log_path: Path, trace_path: Path, cpu: int, clock_origin_s: float,
     skipped = np.flatnonzero(np.diff(t) > 1.5 * period)
     windows = [(t[k], t[k + 1]) for k in (*late, *skipped)]
     events, waiting = read_events(trace_path, cpu)
-    gap = np.flatnonzero(waiting[:-1] & (np.diff(events) >= SILENCE_S))
-    starts, ends = events[gap], events[gap + 1]
+    starts, ends = waiting_silences(events, waiting)
     explained = at_deadline = 0
     for a, b in windows:
         if np.any((starts < b) & (ends > a - 0.2 * period)):  # a silence overlapping the window (or just before it)
