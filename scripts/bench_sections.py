@@ -550,6 +550,8 @@ def _device_side(conn: Any, fd: int | None, period_ns: int, seconds: float, work
     periods = missed = 0
     wake: list[int] = []
     rtt: list[int] = []
+    windows: list[tuple[int, int, int]] = []  # each miss (monotonic ns, from the deadline it concerns to the one it
+    # missed) and the periods it cost
     frame = b"\xaa" * 20
     time.sleep(0.3)  # the host side is up
     d = pc() + period_ns
@@ -568,6 +570,8 @@ def _device_side(conn: Any, fd: int | None, period_ns: int, seconds: float, work
         skipped = late // period_ns  # whole periods passed: skipped, as hil-mock does after an overrun
         periods += skipped + 1
         missed += skipped
+        if skipped:
+            windows.append((d, d + skipped * period_ns, skipped))
         d += (skipped + 1) * period_ns
         if fd is None:
             continue
@@ -585,11 +589,12 @@ def _device_side(conn: Any, fd: int | None, period_ns: int, seconds: float, work
             rtt.append(pc() - t)
         else:
             missed += 1
+            windows.append((t - late % period_ns, d, 1))  # from the deadline it woke for
     cpu_ns = time.thread_time_ns() - cpu0
     if fd is not None:
         os.close(fd)
     conn.send({"fifo": fifo, "periods": periods, "missed": missed, "wake_ns": np.array(wake), "rtt_ns": np.array(rtt),
-               "cpu_ns": cpu_ns})
+               "cpu_ns": cpu_ns, "windows_ns": windows, "span_ns": (end - round(seconds * 1e9), end)})
 
 
 def _host_side(fd: int, other_fd: int, work_ns: int, after_ns: int, conn: Any) -> None:
@@ -623,13 +628,17 @@ def _open_link(kind: str) -> tuple[int, int]:
 
 
 def probe(kind: str, rate: int, seconds: float, device_work_us: float = 0.0, host_work_us: float = 0.0,
-          device_spin_us: float = 0.0, host_after_us: float = 0.0, cpu: int | None = None) -> dict[str, Any]:
+          device_spin_us: float = 0.0, host_after_us: float = 0.0, cpu: int | None = None,
+          trace: bool = False) -> dict[str, Any]:
     """kind: 'wake' (one thread), 'socketpair' or 'pty' (device + host processes). The device spins
     ``device_spin_us`` before each deadline and burns ``device_work_us`` before it writes; the host burns
     ``host_work_us`` before it answers and ``host_after_us`` after. Each side's CPU per period is reported.
     ``cpu``: both sides and the kernel's unbound work (the pty's flush work) on that CPU, as `run --cpu` places the
-    daemon (both sides are forked here: they start on it)."""
-    with on_cpu(cpu):
+    daemon (both sides are forked here: they start on it); ``trace`` (with ``cpu``): a kernel trace of that CPU
+    attributes the misses, as it does a daemon run's (bench_trace)."""
+    from scripts.bench_trace import CpuTrace, attribute_windows, read_timeline, timeline_figures
+
+    with on_cpu(cpu), tempfile.TemporaryDirectory(prefix="furuta-probe-") as tmp, contextlib.ExitStack() as tracing:
         ctx = multiprocessing.get_context("fork")
         recv, send = ctx.Pipe(duplex=False)
         host_recv, host_send = ctx.Pipe(duplex=False)
@@ -647,6 +656,8 @@ def probe(kind: str, rate: int, seconds: float, device_work_us: float = 0.0, hos
         dev.start()
         if dev_fd is not None:
             os.close(dev_fd)
+        # the trace (and its reader thread) starts after the forks, within the device's 0.3 s start-up
+        tracer = tracing.enter_context(CpuTrace(cpu, Path(tmp) / "trace.txt")) if trace and cpu is not None else None
         r = recv.recv()
         dev.join(5.0)
         host_cpu_us = None
@@ -657,12 +668,23 @@ def probe(kind: str, rate: int, seconds: float, device_work_us: float = 0.0, hos
             host.join(5.0)
             if host.is_alive():
                 host.terminate()
+        tracing.close()
+        traced: dict[str, Any] | None = None
+        if tracer is not None:
+            traced = {"available": tracer.ok, "why_not": tracer.why}
+            if tracer.ok:
+                timeline = read_timeline(Path(tmp) / "trace.txt", cpu)  # type: ignore[arg-type]
+                traced |= attribute_windows([(a * 1e-9, b * 1e-9, n) for a, b, n in r["windows_ns"]], timeline,
+                                            1.0 / rate)
+                traced |= timeline_figures(timeline, (r["span_ns"][0] * 1e-9, r["span_ns"][1] * 1e-9))
     period = 1e6 / rate
     out: dict[str, Any] = {"fifo": r["fifo"], "periods": r["periods"], "missed": r["missed"],
                            "miss_percent": 100.0 * r["missed"] / max(r["periods"], 1),
                            "device_cpu_us_per_period": r["cpu_ns"] / 1000.0 / max(r["periods"], 1)}
     if host_cpu_us is not None:
         out["host_cpu_us_per_answer"] = host_cpu_us
+    if traced is not None:
+        out["kernel_trace"] = traced
     w = r["wake_ns"] / 1000.0
     out["wake_late_us"] = {"p50": float(np.percentile(w, 50)), "p99": float(np.percentile(w, 99)), "max": float(w.max())}
     if len(r["rtt_ns"]):
@@ -694,32 +716,53 @@ def interleaved_comparison(rate: int, block_s: float, blocks: int, cpu: int | No
     ~0.1 % and several %), so one long run against one short probe compares two different machines; alternating
     blocks compare the two under the same conditions, and the spread of the per-block differences says how
     finely the comparison resolves. ``cpu``: all three on that CPU (the daemon with `--cpu`, the pair and the lone
-    thread pinned there, with the kernel's unbound work); None: where the scheduler puts them."""
+    thread pinned there, with the kernel's unbound work), each under a kernel trace of that CPU, which sets apart
+    the misses the machine explains (bench_trace) — the comparison of what is left does not depend on how many
+    stalls each block met; None: where the scheduler puts them, untraced."""
     idle = probe("pty", rate, 1.0, cpu=cpu)
+    traced = cpu is not None
     rows = []
     for _ in range(blocks):
-        run = daemon_run(rate, block_s, cache=False, cpu=cpu)
+        run = daemon_run(rate, block_s, cache=False, cpu=cpu, trace=traced)
         work = pair_like(run, idle)
-        pair = probe("pty", rate, block_s, **{k: v for k, v in work.items() if not k.endswith("_cpu_us")}, cpu=cpu)
-        wake = probe("wake", rate, block_s / 2, cpu=cpu)
-        rows.append({"daemon": [run.misses, run.periods], "pair": [pair["missed"], pair["periods"]],
-                     "lone_thread": [wake["missed"], wake["periods"]],
-                     "daemon_cpu_us": {"control": work["control_cpu_us"], "mock": work["mock_cpu_us"]},
-                     "pair_cpu_us": {"host": pair.get("host_cpu_us_per_answer"),
-                                     "device": pair["device_cpu_us_per_period"]}})
+        pair = probe("pty", rate, block_s, **{k: v for k, v in work.items() if not k.endswith("_cpu_us")}, cpu=cpu,
+                     trace=traced)
+        wake = probe("wake", rate, block_s / 2, cpu=cpu, trace=traced)
+        row: dict[str, Any] = {"daemon": [run.misses, run.periods], "pair": [pair["missed"], pair["periods"]],
+                               "lone_thread": [wake["missed"], wake["periods"]],
+                               "daemon_cpu_us": {"control": work["control_cpu_us"], "mock": work["mock_cpu_us"]},
+                               "pair_cpu_us": {"host": pair.get("host_cpu_us_per_answer"),
+                                               "device": pair["device_cpu_us_per_period"]}}
+        explained = {"daemon": run.trace_attribution, "pair": pair.get("kernel_trace"),
+                     "lone_thread": wake.get("kernel_trace")}
+        if all(e is not None and e.get("available") for e in explained.values()):
+            row["unexplained"] = {k: [e["unexplained"], row[k][1]] for k, e in explained.items()}  # type: ignore[union-attr]
+            row["behind_another_task"] = {k: e["unexplained_behind_another_task"]  # type: ignore[index]
+                                          for k, e in explained.items()}
+        rows.append(row)
 
-    def pooled(key: str) -> float:
-        return 100.0 * sum(r[key][0] for r in rows) / max(sum(r[key][1] for r in rows), 1)
+    def pooled(key: str, part: str | None = None) -> float:
+        pick = (lambda r: r[key]) if part is None else (lambda r: r[part][key])
+        return 100.0 * sum(pick(r)[0] for r in rows) / max(sum(pick(r)[1] for r in rows), 1)
+
+    def se(diffs: list[float]) -> float | None:
+        return statistics.stdev(diffs) / math.sqrt(len(diffs)) if len(diffs) > 1 else None
 
     for r in rows:
         r["percent"] = {k: 100.0 * r[k][0] / max(r[k][1], 1) for k in ("daemon", "pair", "lone_thread")}
-    diffs = [r["percent"]["daemon"] - r["percent"]["pair"] for r in rows]
     out = {"cpu": cpu, "blocks": rows, "block_s": block_s, "idle_pair": {k: idle[k] for k in ("device_cpu_us_per_period",
                                                                                   "host_cpu_us_per_answer") if k in idle},
            "daemon_percent": pooled("daemon"), "pair_percent": pooled("pair"), "lone_thread_percent": pooled("lone_thread"),
            "difference_points": pooled("daemon") - pooled("pair"),
-           "difference_se_points": statistics.stdev(diffs) / math.sqrt(len(diffs)) if len(diffs) > 1 else None}
+           "difference_se_points": se([r["percent"]["daemon"] - r["percent"]["pair"] for r in rows])}
     out["within_0.1_of_pair"] = out["difference_points"] <= MISS_TARGET_PERCENT
+    if rows and all("unexplained" in r for r in rows):
+        un = {k: pooled(k, "unexplained") for k in ("daemon", "pair", "lone_thread")}
+        out["unexplained_by_the_machine"] = {
+            "percent": un, "difference_points": un["daemon"] - un["pair"],
+            "difference_se_points": se([100.0 * (r["unexplained"]["daemon"][0] / max(r["unexplained"]["daemon"][1], 1)
+                                                 - r["unexplained"]["pair"][0] / max(r["unexplained"]["pair"][1], 1))
+                                        for r in rows])}
     return out
 
 
@@ -746,6 +789,10 @@ def bench_closed_loop(quick: bool) -> dict[str, Any]:
         out["versus_bare_pair_1kHz_no_cpu_given"] = interleaved_comparison(1000, 10.0 if quick else 20.0,
                                                                            4 if quick else 6, cpu=None)
     out["met"] = out["at_1kHz"]["miss_percent"] < MISS_TARGET_PERCENT or cmp_["within_0.1_of_pair"]
+    kt = main.trace_attribution
+    if kt and kt.get("available"):  # the remaining misses: those no stall of the machine's explains
+        out["unexplained_1kHz_percent"] = 100.0 * kt["unexplained"] / max(main.periods, 1)
+        out["met_but_for_the_machine"] = out["unexplained_1kHz_percent"] < MISS_TARGET_PERCENT
     out["probes_1kHz"]["mock_minimal_host"] = mock_minimal_host(1000, probe_s)
     if not quick:  # the same run without --log (no logger process, no queue)
         out["at_1kHz_without_log"] = daemon_run(1000, 60.0, log=False).figures()
@@ -1344,12 +1391,20 @@ def table(res: dict[str, Any]) -> list[dict[str, Any]]:
         row("closed loop 1 kHz: latency sample→command p50 / p99", f"{a['latency_p50_us']:.0f} / {a['latency_p99_us']:.0f} µs",
             "period 1000 µs", f"{100 * a['latency_p50_fraction']:.0f}% / {100 * a['latency_p99_fraction']:.0f}%")
         kt = c.get("kernel_trace_1kHz")
-        if kt and kt.get("miss_windows") is not None:
-            row(f"closed loop 1 kHz: misses during which the loop's CPU {c['cpu']} did not run (kernel trace: no event for "
-                f"≥ {kt['silence_threshold_us']:.0f} µs while a task it woke waited)",
-                f"{kt['with_cpu_silence']} of {kt['miss_windows']} ({kt.get('of_them_at_a_deadline', 0)} at a deadline)",
-                f"{kt['silences_in_run']} such silences in the run, {kt['silence_total_ms']:.0f} ms in all, longest "
-                f"{kt['silence_longest_ms']:.1f} ms", f"{kt['without']} misses without one")
+        if kt and kt.get("misses") is not None:
+            k = kt["machine_by_kind"]
+            row(f"closed loop 1 kHz: misses the machine explains (kernel trace of CPU {c['cpu']}: it stopped ≥ "
+                f"{kt['threshold_us']:.0f} µs while a task waited to run, under a running task, or across a deadline)",
+                f"{kt['machine']} of {kt['misses']}", f"{k['silence']} / {k['stall']} / {k['at_a_deadline']}; the CPU "
+                f"lost {kt['lost_total_ms']:.0f} ms in the run, longest {kt['lost_longest_ms']:.1f} ms",
+                f"{c['unexplained_1kHz_percent']:.3f}% of periods left unexplained", "< 0.1%",
+                c["met_but_for_the_machine"])
+            v = c.get("versus_bare_pair_1kHz", {}).get("unexplained_by_the_machine")
+            if v:
+                se = f" ± {v['difference_se_points']:.3f}" if v["difference_se_points"] is not None else ""
+                row("closed loop 1 kHz vs the bare pair, same blocks, only the misses the machine does not explain",
+                    f"{v['percent']['daemon']:.3f}%", f"bare pair {v['percent']['pair']:.3f}%, lone thread "
+                    f"{v['percent']['lone_thread']:.3f}%", f"{v['difference_points']:+.3f}{se} points", "")
         elif kt:
             row("closed loop 1 kHz: kernel trace of the misses", "not taken", kt.get("why_not", ""), "")
         at = c["attribution_1kHz"]

@@ -2,14 +2,18 @@
 
 With `run --cpu N` everything a SAMPLE → COMMAND round trip waits for runs on CPU N: the loop, hil-mock's device
 thread and the kernel's tty work. While it runs, an ftrace instance of its own records that CPU's scheduling events
-(sched_switch, sched_waking) on CLOCK_MONOTONIC, streamed to a file. A woken task on a CPU that is otherwise idle or
-busy with our few-µs ticks runs within microseconds; when the CPU records no event at all for longer than
-``SILENCE_S`` while a task it woke is waiting to run, the CPU was not running — on a virtual machine, the hypervisor
-had descheduled it. The same holds at each of the device's deadlines: its timer fires there (the CPU records the
-wake-up), so a CPU that records nothing from just before a deadline to ``SILENCE_S`` after it was not running either.
-Each miss of the run (its log's COMMAND_LATE ticks, and the periods hil-mock skipped) is a window of device time,
-mapped onto the same clock by hil-mock's ``clock_origin_s``; a miss whose window holds either kind of silence is the
-machine's, the others are left to the stack.
+(sched_switch, sched_waking, and sched_stat_runtime: the run time the kernel charges a task, which leaves out time
+the hypervisor stole) on CLOCK_MONOTONIC, streamed to a file. A task woken onto a CPU that is idle or busy with our
+few-µs ticks runs within microseconds, and a running task is charged the time it holds the CPU. So when a task was
+ready on the CPU and, for ``SILENCE_S`` or longer, nothing ran it — nothing recorded while it waited on an idle CPU,
+or it was charged that much less than the time since it was woken or last charged — the CPU was not running: on a
+virtual machine, the hypervisor had it. The same holds at each of the device's deadlines: its timer fires there (the
+CPU records the wake-up), so a CPU that records nothing from just before a deadline to ``SILENCE_S`` after it was not
+running either. A woken task that waited that long while another task ran, and was charged, is load, not the
+machine; the trace names the holder.
+Each miss of a run (its log's COMMAND_LATE ticks, and the periods hil-mock skipped; or a bare pair's missed periods)
+is a window of monotonic time (hil-mock's ``clock_origin_s`` maps device time onto it); a miss whose window meets
+time the CPU lost is the machine's, the others are left unexplained.
 """
 
 from __future__ import annotations
@@ -17,8 +21,8 @@ from __future__ import annotations
 import contextlib
 import os
 import re
-import select
 import threading
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +33,13 @@ INSTANCE = "furuta-bench"
 SILENCE_S = 300e-6
 """A CPU that records nothing for this long while a task it woke waits has not been running: our ticks' pieces (the
 device's tick, the kworker's flush, the host's update) each take tens of µs, and a woken task runs at once."""
-_LINE = re.compile(r"\[(\d+)\]\s+\S+\s+(\d+\.\d+): (sched_switch|sched_waking): (.*)$")
+READ_EVERY_S = 0.05
+"""How often the reader drains the trace (the buffer holds seconds of events)."""
+EVENTS = ("sched/sched_switch", "sched/sched_waking", "sched/sched_stat_runtime")
+_LINE = re.compile(r"^\s*(.*)-(\d+)\s+\[(\d+)\]\s+\S+\s+(\d+\.\d+): (sched_switch|sched_waking|sched_stat_runtime): (.*)$")
+_SWITCH = re.compile(r"prev_pid=(\d+) prev_prio=\d+ prev_state=(\S+) ==> next_comm=(.*) next_pid=(\d+) next_prio=(\d+)")
+_WOKEN = re.compile(r"pid=(\d+) prio=(\d+) target_cpu=(\d+)")
+_CHARGED = re.compile(r"pid=(\d+) runtime=(\d+)")
 
 
 class CpuTrace:
@@ -56,7 +66,7 @@ class CpuTrace:
             self._write("trace_clock", "mono")
             self._write("buffer_size_kb", "8192")
             self._write("tracing_cpumask", format(1 << self.cpu, "x"))
-            for event in ("sched/sched_switch", "sched/sched_waking"):
+            for event in EVENTS:
                 self._write(f"events/{event}/enable", "1")
             self._write("tracing_on", "1")
         except OSError as err:
@@ -69,28 +79,30 @@ class CpuTrace:
         return self
 
     def _stream(self) -> None:
-        others = os.sched_getaffinity(0) - {self.cpu}
-        if others:  # the reader's wake-ups must not compete with the traced CPU's work
+        """Copy trace_pipe to the file every ``READ_EVERY_S``. The pipe is never waited on (no poll, no blocking
+        read): a waiting reader makes the ring buffer wake it, by an interrupt on the traced CPU, for every event
+        recorded there — and that wake-up is itself an event, so the reader's wake-ups would fill the trace and
+        load the very CPU it measures."""
+        others = set(range(os.cpu_count() or 1)) - {self.cpu}  # this process may be pinned to the traced CPU
+        with contextlib.suppress(OSError):  # the reader's work must not compete with the traced CPU's
             os.sched_setaffinity(0, others)
-        fd = os.open(self._dir / "trace_pipe", os.O_RDONLY | os.O_NONBLOCK)  # a blocking read never returns once
-        # tracing stops, and holds the instance busy
-        poller = select.poll()
-        poller.register(fd, select.POLLIN)
+        fd = os.open(self._dir / "trace_pipe", os.O_RDONLY | os.O_NONBLOCK)
         try:
             with open(self.path, "wb") as out:
                 while True:
-                    poller.poll(100)
-                    try:
-                        chunk = os.read(fd, 1 << 16)
-                    except BlockingIOError:
-                        if self._done.is_set():
+                    done = self._done.wait(READ_EVERY_S)  # set once tracing is off: one last drain, then stop
+                    while True:
+                        try:
+                            chunk = os.read(fd, 1 << 16)
+                        except BlockingIOError:
+                            break
+                        except OSError:
                             return
-                        continue
-                    except OSError:
+                        if not chunk:
+                            break
+                        out.write(chunk)
+                    if done:
                         return
-                    if not chunk and self._done.is_set():
-                        return
-                    out.write(chunk)
         finally:
             os.close(fd)
 
@@ -106,7 +118,7 @@ class CpuTrace:
 
     def _remove(self) -> None:
         with contextlib.suppress(OSError):
-            for event in ("sched/sched_switch", "sched/sched_waking"):
+            for event in EVENTS:
                 self._write(f"events/{event}/enable", "0")
         for _ in range(50):  # busy while the reader still holds trace_pipe open
             try:
@@ -118,31 +130,96 @@ class CpuTrace:
                 threading.Event().wait(0.1)
 
 
-def read_events(path: Path, cpu: int) -> tuple[np.ndarray, np.ndarray]:
-    """The times (monotonic s) of ``cpu``'s events, and for each whether a task it had woken was waiting to run just
-    after it (set by a sched_waking aimed at ``cpu``, cleared by the next sched_switch)."""
+@dataclass
+class CpuTimeline:
+    """One CPU's trace reduced to the stretches in which it lost time (monotonic seconds).
+
+    - ``lost``: ≥ ``SILENCE_S`` in which a task was ready on the CPU and nothing ran it — the CPU was idle with a
+      task it had woken waiting and recorded nothing, or a task was charged that much less than the time since it
+      was woken or last charged (the kernel's run time leaves out time the hypervisor stole). Either way the CPU
+      was not running: on a virtual machine, the hypervisor had it.
+    - ``held``: a task it had woken waited ≥ ``SILENCE_S`` while another task ran, and was charged for it — load,
+      not the machine: the holder's name is kept.
+    ``events`` are the times of all its events (``deadline_silences``)."""
+
+    events: np.ndarray
+    lost: np.ndarray  # (n, 2) starts, ends
+    held: list[tuple[float, float, str]] = field(default_factory=list)
+
+
+def read_timeline(path: Path, cpu: int, min_s: float = SILENCE_S) -> CpuTimeline:
+    """``cpu``'s events in a trace of sched_switch, sched_waking and sched_stat_runtime lines (trace_pipe's text).
+
+    Each line names the task that was running when it was recorded; a task that appears without a sched_switch to
+    it came off the idle task (this kernel records no switch out of idle). Its charged time then runs from its
+    wake-up: on a CPU that was running, a task woken onto it idle starts within microseconds."""
     times: list[float] = []
-    waiting_after: list[bool] = []
-    waiting = False
+    lost: list[tuple[float, float]] = []
+    runs: list[tuple[float, float, str]] = []  # who held the CPU: (from, to, "comm (prio)")
+    waits: list[tuple[float, float]] = []  # a woken or preempted task waiting ≥ min_s behind another
+    prio: dict[int, str] = {}
+    current: int | None = None  # the running task's pid (0: idle); unknown until the first event
+    holder, run_start = "", 0.0
+    charged_since = 0.0  # when the running task's charged time was last brought up to date
+    waiting: dict[int, float] = {}  # pid → since when it has been waiting to run on this CPU
+    last: float | None = None
     with open(path, "rb") as f:
         for raw in f:
             m = _LINE.search(raw.decode(errors="replace"))
-            if m is None or int(m.group(1)) != cpu:
+            if m is None or int(m.group(3)) != cpu:
                 continue
-            if m.group(3) == "sched_waking":
-                waiting = waiting or f"target_cpu={cpu:03d}" in m.group(4)
-            else:
-                waiting = False
-            times.append(float(m.group(2)))
-            waiting_after.append(waiting)
-    return np.array(times), np.array(waiting_after, dtype=bool)
+            t, kind, rest = float(m.group(4)), m.group(5), m.group(6)
+            running = int(m.group(2))
+            if running != current:  # switched to without a recorded switch: off the idle task
+                if current not in (None, 0):
+                    runs.append((run_start, t, holder))
+                woken = waiting.pop(running, None)
+                charged_since = run_start = woken if woken is not None and current == 0 else (last or t)
+                current, holder = running, f"{m.group(1).strip()} (prio {prio.get(running, '?')})"
+            elif last is not None and waiting and current == 0 and t - last >= min_s:
+                lost.append((last, t))  # idle, with a task waiting to run, and nothing recorded
+            if kind == "sched_waking":
+                w = _WOKEN.search(rest)
+                if w is not None:
+                    prio[int(w.group(1))] = w.group(2)
+                    if int(w.group(3)) == cpu:
+                        waiting.setdefault(int(w.group(1)), t)
+            elif kind == "sched_stat_runtime":
+                c = _CHARGED.search(rest)
+                if c is not None and int(c.group(1)) == current:
+                    if (t - charged_since) - int(c.group(2)) * 1e-9 >= min_s:
+                        lost.append((charged_since, t))
+                    charged_since = t
+            elif (n := _SWITCH.search(rest)) is not None:
+                if current not in (None, 0):
+                    runs.append((run_start, t, holder))
+                if n.group(2).startswith("R") and current != 0:  # preempted: still runnable, waiting again (the
+                    # idle task always leaves in state R)
+                    waiting.setdefault(int(n.group(1)), t)
+                nxt = int(n.group(4))
+                prio[nxt] = n.group(5)
+                since = waiting.pop(nxt, None)
+                if since is not None and t - since >= min_s:
+                    waits.append((since, t))
+                current, holder, run_start, charged_since = nxt, f"{n.group(3)} (prio {n.group(5)})", t, t
+                if current == 0:  # the CPU goes idle only when nothing is left to run on it
+                    waiting.clear()
+            times.append(t)
+            last = t
+    starts, ends = np.array([r[0] for r in runs]), np.array([r[1] for r in runs])
+    held = [(a, b, who) for a, b in waits if (who := _longest_holder(runs, starts, ends, a, b))]
+    return CpuTimeline(np.array(times), np.array(lost).reshape(-1, 2), held)
 
 
-def waiting_silences(events: np.ndarray, waiting: np.ndarray, min_s: float = SILENCE_S) -> tuple[np.ndarray, np.ndarray]:
-    """(starts, ends), monotonic seconds, of the stretches ≥ ``min_s`` in which the CPU recorded no event while a task
-    it had woken waited to run (``read_events``)."""
-    gap = np.flatnonzero(waiting[:-1] & (np.diff(events) >= min_s))
-    return events[gap], events[gap + 1]
+def _longest_holder(runs: list[tuple[float, float, str]], starts: np.ndarray, ends: np.ndarray, a: float,
+                    b: float) -> str:
+    """The task that held the CPU longest between ``a`` and ``b`` ("" if only the idle task did); ``runs`` in time
+    order, ``starts`` and ``ends`` their columns."""
+    held: dict[str, float] = {}
+    for i in range(int(np.searchsorted(ends, a, "right")), int(np.searchsorted(starts, b, "left"))):
+        s, e, who = runs[i]
+        held[who] = held.get(who, 0.0) + min(e, b) - max(s, a)
+    return max(held, key=held.__getitem__) if held else ""
 
 
 def deadline_silences(events: np.ndarray, deadlines: np.ndarray, min_s: float = SILENCE_S,
@@ -154,36 +231,55 @@ def deadline_silences(events: np.ndarray, deadlines: np.ndarray, min_s: float = 
     return nxt - deadlines >= min_s
 
 
+def _overlaps(spans: np.ndarray, a: float, b: float) -> bool:
+    return bool(np.any((spans[:, 0] < b) & (spans[:, 1] > a))) if len(spans) else False
+
+
+def attribute_windows(windows: list[tuple[float, float, int]], timeline: CpuTimeline, period: float) -> dict[str, Any]:
+    """Each miss is a window of monotonic time, from the deadline of the round trip it concerns to the deadline it
+    missed, and the periods it cost; it is the machine's when the window, or the fifth of a period before it,
+    overlaps time the CPU lost, or the CPU recorded nothing across one of the window's deadlines
+    (``deadline_silences``). The others stay unexplained; of those, the ones in which a woken task waited behind
+    another say which task. Counts are periods."""
+    counts = {"cpu_not_running": 0, "at_a_deadline": 0}
+    holders: dict[str, int] = {}
+    unexplained = 0
+    held = np.array([(a, b) for a, b, _ in timeline.held]).reshape(-1, 2)
+    for a, b, n in windows:
+        lead = a - 0.2 * period
+        if _overlaps(timeline.lost, lead, b):
+            counts["cpu_not_running"] += n
+        elif np.any(deadline_silences(timeline.events, a + period * np.arange(0, round((b - a) / period) + 1))):
+            counts["at_a_deadline"] += n
+        else:
+            unexplained += n
+            if len(held) and np.any(hit := (held[:, 0] < b) & (held[:, 1] > lead)):
+                name = timeline.held[int(np.flatnonzero(hit)[0])][2]
+                holders[name] = holders.get(name, 0) + n
+    return {"misses": sum(counts.values()) + unexplained, "machine": sum(counts.values()), "machine_by_kind": counts,
+            "unexplained": unexplained, "unexplained_behind_another_task": holders}
+
+
+def timeline_figures(timeline: CpuTimeline, span: tuple[float, float]) -> dict[str, Any]:
+    """How much time the CPU lost between ``span``'s ends."""
+    lost = timeline.lost[(timeline.lost[:, 0] >= span[0]) & (timeline.lost[:, 1] <= span[1])]
+    d = lost[:, 1] - lost[:, 0]
+    return {"lost_stretches": len(d), "lost_total_ms": float(np.sum(d) * 1e3),
+            "lost_longest_ms": float(np.max(d) * 1e3) if len(d) else 0.0, "threshold_us": SILENCE_S * 1e6}
+
+
 def attribute(log_path: Path, trace_path: Path, cpu: int, clock_origin_s: float, rate: float) -> dict[str, Any]:
-    """The run's misses, each the window of device time from the SAMPLE it concerns to the next tick (a COMMAND_LATE
-    on tick k+1 is about SAMPLE k; a jump of the device's clock is hil-mock's skipped periods), mapped onto the
-    monotonic clock; how many of them hold a silence of the loop's CPU (``waiting_silences``,
-    ``deadline_silences``)."""
+    """A daemon run's misses against the trace of its CPU: each COMMAND_LATE on tick k+1 is the window from SAMPLE k
+    to tick k+1; a jump of the device's clock (hil-mock's skipped periods) is the window it jumped; device time is
+    mapped onto the monotonic clock by hil-mock's ``clock_origin_s``."""
     from firmware_protocol import StatusFlags
     from furuta_rt.io.mcap_read import read_log
 
     ticks = read_log(log_path, timing=False, events=False).ticks
     t = clock_origin_s + np.asarray(ticks["t"], dtype=float)
-    period = 1.0 / rate
     late = np.flatnonzero((np.asarray(ticks["status"]) & int(StatusFlags.COMMAND_LATE))[1:] != 0)
-    skipped = np.flatnonzero(np.diff(t) > 1.5 * period)
-    windows = [(t[k], t[k + 1]) for k in (*late, *skipped)]
-    events, waiting = read_events(trace_path, cpu)
-    starts, ends = waiting_silences(events, waiting)
-    explained = at_deadline = 0
-    for a, b in windows:
-        if np.any((starts < b) & (ends > a - 0.2 * period)):  # a silence overlapping the window (or just before it)
-            explained += 1
-            continue
-        deadlines = a + period * np.arange(0, round((b - a) / period) + 1)
-        if np.any(deadline_silences(events, deadlines)):
-            explained += 1
-            at_deadline += 1
-    span = (t[0], t[-1]) if len(t) else (0.0, 0.0)
-    inside = (starts >= span[0]) & (ends <= span[1])
-    return {"miss_windows": len(windows), "with_cpu_silence": explained, "of_them_at_a_deadline": at_deadline,
-            "without": len(windows) - explained,
-            "silences_in_run": int(np.sum(inside)),
-            "silence_total_ms": float(np.sum(ends[inside] - starts[inside]) * 1e3),
-            "silence_longest_ms": float(np.max(ends[inside] - starts[inside]) * 1e3) if np.any(inside) else 0.0,
-            "silence_threshold_us": SILENCE_S * 1e6}
+    skipped = np.flatnonzero(np.diff(t) > 1.5 / rate)
+    timeline = read_timeline(trace_path, cpu)
+    windows = [(t[k], t[k + 1], 1) for k in late] + [(t[k], t[k + 1], round((t[k + 1] - t[k]) * rate) - 1) for k in skipped]
+    out = attribute_windows(windows, timeline, 1.0 / rate)
+    return out | timeline_figures(timeline, (t[0], t[-1]) if len(t) else (0.0, 0.0))
