@@ -1,7 +1,7 @@
 """Where the real-time threads run: one CPU for the loop, the device it talks to and the kernel's tty work.
 
 ``pin_cpu`` pins the calling thread (the control loop; hil-mock's device thread). ``confine_unbound_work`` moves the
-kernel's unbound work to that CPU.
+kernel's unbound work to that CPU; ``move_kernel_threads_off`` moves the kernel's housekeeping threads off it.
 
 Bytes written to a pseudo-terminal (and bytes a USB-serial adapter receives) reach the reader through a kernel work
 item (``flush_to_ldisc``) on an *unbound* workqueue, run by a normal-priority kworker on whichever CPU the scheduler
@@ -10,10 +10,15 @@ CPU its hypervisor is not running at that moment wakes milliseconds later, and t
 (and, with ``--mock``, the device) pinned to one CPU and the unbound work confined to it too, a round trip needs no
 other CPU: what remains is that one CPU's own stalls, the floor a lone SCHED_FIFO thread measures.
 
-The mask (``/sys/devices/virtual/workqueue/cpumask``) is machine-wide: it moves all unbound kernel work, not only the
-tty's. So it is changed only on request (``furuta-rt run --cpu N``), put back when the run ends, and the original is
-kept in a state file first, so that a run killed before it could put the mask back (SIGKILL) is undone by the next
-run that confines it.
+The flush work runs at normal priority, so on that CPU it waits behind any normal-priority task there. Among those
+are the kernel's own housekeeping threads (memory reclaim and monitoring such as kswapd, kcompactd, kdamond; RCU;
+kthreadd): a kernel trace of 1 kHz runs found the tty work waiting behind kdamond for more than a period. Those that
+may run anywhere are moved to the other CPUs for the run, as real-time setups isolate a CPU (tuna --isolate, or
+isolcpus at boot); threads bound to one CPU and the kernel's own workers stay.
+
+Both changes are machine-wide. So they are made only on request (``furuta-rt run --cpu N``), undone when the run
+ends, and the originals are kept in a state file first, so that a run killed before it could undo them (SIGKILL) is
+undone by the next run that makes them.
 """
 
 from __future__ import annotations
@@ -27,6 +32,9 @@ from furuta_rt.errors import UserError
 
 WORKQUEUE_CPUMASK = Path("/sys/devices/virtual/workqueue/cpumask")
 STATE_FILE = Path("/run/furuta-rt/unbound-work-cpumask")
+KERNEL_THREADS_STATE_FILE = Path("/run/furuta-rt/kernel-threads")
+PF_KTHREAD = 0x00200000  # /proc/PID/stat flags: a kernel thread
+PF_NO_SETAFFINITY = 0x04000000  # … whose CPUs the kernel manages (per-CPU threads, workqueue workers)
 
 
 def pin_cpu(cpu: int | None = None) -> tuple[int | None, str | None]:
@@ -148,3 +156,115 @@ def confine_unbound_work(cpu: int, mask_file: Path = WORKQUEUE_CPUMASK,
             state_file.unlink()
         return None, f"cannot confine the kernel's unbound work to CPU {cpu} ({err.strerror})"
     return UnboundWork(original, mask_file, state_file), warning
+
+
+@dataclass
+class MovedThreads:
+    """Kernel threads moved off a CPU by this process: pid → (name, the CPUs it had); ``restore()`` gives each its
+    CPUs back (once), if it is still the same thread."""
+
+    original: dict[int, tuple[str, set[int]]]
+    state_file: Path
+    proc: Path = Path("/proc")
+    restored: bool = False
+
+    def restore(self) -> str | None:
+        """Give the threads their CPUs back; a warning naming those it could not, else None."""
+        if self.restored:
+            return None
+        self.restored = True
+        failed = _give_back(self.original, self.proc)
+        with contextlib.suppress(OSError):
+            self.state_file.unlink()
+        if failed:
+            return f"cannot give kernel threads their CPUs back: {', '.join(failed)}"
+        return None
+
+
+def _comm(pid: int, proc: Path) -> str | None:
+    try:
+        return (proc / str(pid) / "comm").read_text().strip()
+    except OSError:
+        return None
+
+
+def _give_back(original: dict[int, tuple[str, set[int]]], proc: Path) -> list[str]:
+    failed = []
+    for pid, (comm, cpus) in original.items():
+        if _comm(pid, proc) != comm:  # gone (its pid may since name another task)
+            continue
+        try:
+            os.sched_setaffinity(pid, cpus)
+        except OSError as err:
+            failed.append(f"{comm} (pid {pid}: {err.strerror})")
+    return failed
+
+
+def movable_kernel_threads(cpu: int, proc: Path = Path("/proc")) -> dict[int, tuple[str, set[int]]]:
+    """The kernel threads that may run on ``cpu`` and on other CPUs, and whose CPUs may be changed: pid → (name,
+    their CPUs)."""
+    found: dict[int, tuple[str, set[int]]] = {}
+    for entry in proc.iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            flags = int(stat[stat.rindex(")") + 2:].split()[6])
+            if not flags & PF_KTHREAD or flags & PF_NO_SETAFFINITY:
+                continue
+            cpus = os.sched_getaffinity(int(entry.name))
+        except (OSError, ValueError, IndexError):
+            continue
+        if cpu in cpus and len(cpus) > 1:
+            found[int(entry.name)] = (stat[stat.index("(") + 1:stat.rindex(")")], cpus)
+    return found
+
+
+def _undo_stale_threads(state_file: Path, proc: Path) -> tuple[int | None, str | None]:
+    """A state file of moved threads left by another run: (its pid if that run is alive, else None after giving the
+    threads back their CPUs; a warning naming those it could not)."""
+    try:
+        owner, *lines = state_file.read_text().splitlines()
+        original = {int(pid): (comm, mask_cpus(mask)) for pid, mask, comm in (ln.split(" ", 2) for ln in lines)}
+        holder = int(owner)
+    except (OSError, ValueError):
+        return None, None
+    if holder != os.getpid() and _alive(holder):
+        return holder, None
+    failed = _give_back(original, proc)
+    with contextlib.suppress(OSError):
+        state_file.unlink()
+    return None, (f"cannot give kernel threads a killed run moved their CPUs back: {', '.join(failed)}" if failed else None)
+
+
+def move_kernel_threads_off(cpu: int, proc: Path = Path("/proc"),
+                            state_file: Path = KERNEL_THREADS_STATE_FILE) -> tuple[MovedThreads | None, str | None]:
+    """Move the kernel's housekeeping threads that may run elsewhere off ``cpu`` (``movable_kernel_threads``); returns
+    (the moves held, or None; a warning naming why not, or None)."""
+    holder, warning = _undo_stale_threads(state_file, proc)
+    if holder is not None:
+        return None, (f"another furuta-rt run (pid {holder}) holds the kernel's housekeeping threads off its CPU; this "
+                      "run leaves them as they are")
+    threads = movable_kernel_threads(cpu, proc)
+    if not threads:
+        return None, warning
+    try:
+        state_file.parent.mkdir(parents=True, exist_ok=True)
+        state_file.write_text(f"{os.getpid()}\n" + "".join(f"{pid} {cpu_mask(cpus)} {comm}\n"
+                                                           for pid, (comm, cpus) in threads.items()))
+    except OSError as err:
+        return None, f"cannot keep the kernel threads' CPUs in {state_file} ({err.strerror}); they stay where they are"
+    moved: dict[int, tuple[str, set[int]]] = {}
+    refused = []
+    for pid, (comm, cpus) in threads.items():
+        try:
+            os.sched_setaffinity(pid, cpus - {cpu})
+            moved[pid] = (comm, cpus)
+        except OSError as err:
+            refused.append(f"{comm} ({err.strerror})")
+    held = MovedThreads(moved, state_file, proc)
+    if not moved:
+        held.restore()
+        return None, (f"cannot move the kernel's housekeeping threads off CPU {cpu} ({refused[0]}): the tty's "
+                      "kernel work may wait behind them. Fix: run as root")
+    return held, warning

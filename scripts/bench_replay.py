@@ -24,7 +24,7 @@ from furuta_rt.io.mcap_read import LogData, read_log
 from furuta_rt.replay import ReplayResult, replay_log
 from furuta_rt.replay.simulate import simulate_log
 
-TARGET_X = 200.0  # issue 18: replay (read + re-run) at least 200× real time on a 1 kHz log
+TARGET_X = 200.0  # replay (read + re-run) at least 200× real time on a 1 kHz log
 
 
 def cached_log_path(minutes: float, rate: float, mode: str) -> Path:

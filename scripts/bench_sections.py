@@ -1,4 +1,4 @@
-"""Benchmark sections for scripts/bench (issue 9). Each prints figures with the reference they are
+"""Benchmark sections for scripts/bench. Each prints figures with the reference they are
 compared to, as ratios: this machine is shared and absolute times drift from run to run.
 
 Run: scripts/bench [--quick] [--json OUT] [--only tick,simulator,...]
@@ -527,20 +527,23 @@ def _fifo(priority: int = 50) -> bool:
 @contextlib.contextmanager
 def on_cpu(cpu: int | None) -> Any:
     """This process (and what it forks or starts: hil-mock, the bare pairs' sides) on ``cpu`` with the kernel's unbound
-    work, as `furuta-rt run --cpu` places the loop; nothing when ``cpu`` is None."""
+    work, and its housekeeping threads off it, as `furuta-rt run --cpu` places the loop; nothing when ``cpu`` is
+    None."""
     if cpu is None:
         yield
         return
-    from furuta_rt.cpu_placement import confine_unbound_work
+    from furuta_rt.cpu_placement import confine_unbound_work, move_kernel_threads_off
 
     before = os.sched_getaffinity(0)
     os.sched_setaffinity(0, {cpu})
     confined, _ = confine_unbound_work(cpu)
+    moved, _ = move_kernel_threads_off(cpu)
     try:
         yield
     finally:
-        if confined is not None:
-            confined.restore()
+        for held in (moved, confined):
+            if held is not None:
+                held.restore()
         os.sched_setaffinity(0, before)
 
 
@@ -1395,8 +1398,8 @@ def table(res: dict[str, Any]) -> list[dict[str, Any]]:
             k = kt["machine_by_kind"]
             row(f"closed loop 1 kHz: misses the machine explains (kernel trace of CPU {c['cpu']}: it stopped ≥ "
                 f"{kt['threshold_us']:.0f} µs while a task waited to run, under a running task, or across a deadline)",
-                f"{kt['machine']} of {kt['misses']}", f"{k['silence']} / {k['stall']} / {k['at_a_deadline']}; the CPU "
-                f"lost {kt['lost_total_ms']:.0f} ms in the run, longest {kt['lost_longest_ms']:.1f} ms",
+                f"{kt['machine']} of {kt['misses']}", f"{k['cpu_not_running']} the CPU not running, {k['at_a_deadline']} "
+                f"across a deadline; it lost {kt['lost_total_ms']:.0f} ms in the run, longest {kt['lost_longest_ms']:.1f} ms",
                 f"{c['unexplained_1kHz_percent']:.3f}% of periods left unexplained", "< 0.1%",
                 c["met_but_for_the_machine"])
             v = c.get("versus_bare_pair_1kHz", {}).get("unexplained_by_the_machine")

@@ -12,7 +12,14 @@ from pathlib import Path
 
 import pytest
 
-from furuta_rt.cpu_placement import WORKQUEUE_CPUMASK, confine_unbound_work, cpu_mask, mask_cpus
+from furuta_rt.cpu_placement import (
+    WORKQUEUE_CPUMASK,
+    confine_unbound_work,
+    cpu_mask,
+    mask_cpus,
+    movable_kernel_threads,
+    move_kernel_threads_off,
+)
 
 
 def test_the_kernels_mask_format_round_trips() -> None:
@@ -102,3 +109,53 @@ def test_the_kernel_takes_the_mask_and_gets_its_own_back(tmp_path: Path) -> None
         if held is not None:
             held.restore()
     assert WORKQUEUE_CPUMASK.read_text().strip() == before
+
+
+def test_kernel_threads_a_killed_run_moved_get_their_cpus_back_from_its_state_file(tmp_path: Path) -> None:
+    """The state file names each moved thread with its CPUs; a dead owner's moves are undone, a live owner's are
+    left, and a pid that now names another task is not touched."""
+    state = tmp_path / "state"
+    me = os.getpid()
+    mine = sorted(os.sched_getaffinity(0))
+    proc = tmp_path / "proc"  # a stand-in /proc that names this process only (no kernel threads to move)
+    (proc / str(me)).mkdir(parents=True)
+    (proc / str(me) / "comm").write_text(Path(f"/proc/{me}/comm").read_text())
+    code = "import time; time.sleep(30)"
+    owner = subprocess.Popen([sys.executable, "-c", code])
+    try:
+        state.write_text(f"{owner.pid}\n{me} {cpu_mask(set(mine))} {Path(f'/proc/{me}/comm').read_text().strip()}\n")
+        held, warning = move_kernel_threads_off(mine[-1], state_file=state)
+        assert held is None and warning is not None and f"pid {owner.pid}" in warning and "\n" not in warning
+        assert state.exists()
+    finally:
+        owner.kill()
+        owner.wait()
+    if len(mine) > 1:  # the owner is gone: this process (named in its file) gets the CPUs it lists
+        os.sched_setaffinity(0, {mine[0]})
+        try:
+            move_kernel_threads_off(mine[-1], proc=proc, state_file=state)
+            assert sorted(os.sched_getaffinity(0)) == mine and not state.exists()
+        finally:
+            os.sched_setaffinity(0, mine)
+    state.write_text(f"{owner.pid}\n{me} {cpu_mask({mine[0]})} not-this-process\n")
+    os.sched_setaffinity(0, set(mine))
+    move_kernel_threads_off(mine[-1], proc=proc, state_file=state)
+    assert sorted(os.sched_getaffinity(0)) == mine and not state.exists()  # another name: left alone
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or len(os.sched_getaffinity(0)) < 2 or not movable_kernel_threads(
+    sorted(os.sched_getaffinity(0))[-1]), reason="needs root, two CPUs and kernel threads that may move")
+def test_the_kernels_housekeeping_threads_leave_the_cpu_and_come_back(tmp_path: Path) -> None:
+    cpu = sorted(os.sched_getaffinity(0))[-1]
+    before = movable_kernel_threads(cpu)
+    held, warning = move_kernel_threads_off(cpu, state_file=tmp_path / "state")
+    try:
+        assert warning is None and held is not None and set(held.original) == set(before)
+        assert movable_kernel_threads(cpu) == {}
+        assert all(cpu not in os.sched_getaffinity(pid) for pid in before)
+        owner, *lines = (tmp_path / "state").read_text().splitlines()
+        assert int(owner) == os.getpid() and len(lines) == len(before)
+    finally:
+        if held is not None:
+            held.restore()
+    assert movable_kernel_threads(cpu) == before and not (tmp_path / "state").exists()

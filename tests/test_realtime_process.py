@@ -15,7 +15,13 @@ import pytest
 from test_reliability_harness import DaemonProcess, traceback_free
 
 from furuta_rt.cpu_idle import CPU_LATENCY_DEVICE, current_wakeup_latency_us
-from furuta_rt.cpu_placement import STATE_FILE, WORKQUEUE_CPUMASK, mask_cpus
+from furuta_rt.cpu_placement import (
+    KERNEL_THREADS_STATE_FILE,
+    STATE_FILE,
+    WORKQUEUE_CPUMASK,
+    mask_cpus,
+    movable_kernel_threads,
+)
 
 
 def _mapped_files(pid: int) -> set[str]:
@@ -89,11 +95,15 @@ def _fifo_thread(pid: int) -> int:
                     reason="needs root (the kernel's unbound work mask) and two CPUs")
 def test_one_cpu_for_the_loop_the_device_and_the_ttys_kernel_work(tmp_path: Path) -> None:
     """`run --cpu N`: the loop and hil-mock's device thread on CPU N, the kernel's unbound work (the pty's flush work)
-    confined there while it runs, the logger kept off it; the mask put back at the end — and after a SIGKILL, which
-    leaves it confined, by the next run."""
+    confined there while it runs, the kernel's housekeeping threads and the logger kept off it; the mask and the
+    threads' CPUs put back at the end — and after a SIGKILL, which leaves them changed, by the next run."""
     # the mask before any run: a run killed earlier may have left it confined, with the original in its state file
     before = STATE_FILE.read_text().split()[1] if STATE_FILE.exists() else WORKQUEUE_CPUMASK.read_text().strip()
     cpu = sorted(mask_cpus(before) & os.sched_getaffinity(0))[-1]
+    housekeeping = movable_kernel_threads(cpu)  # pid → (name, CPUs) before the run (or before a killed one)
+    if KERNEL_THREADS_STATE_FILE.exists():
+        housekeeping |= {int(pid): (name, mask_cpus(mask)) for pid, mask, name in
+                         (line.split(" ", 2) for line in KERNEL_THREADS_STATE_FILE.read_text().splitlines()[1:])}
     daemon = DaemonProcess(["--mock", "--no-tui", "--duration", "60", "--cpu", str(cpu), "--log", str(tmp_path / "a.mcap")])
     try:
         daemon.wait_for_line("→ balancing")
@@ -103,6 +113,7 @@ def test_one_cpu_for_the_loop_the_device_and_the_ttys_kernel_work(tmp_path: Path
         mock = [p for p in daemon.children() if "hil_mock" in _cmdline(p)]
         device_cpus = _allowed_cpus(mock[0], _fifo_thread(mock[0]))
         logger_cpus = [_allowed_cpus(p) for p in daemon.spawned()]
+        kernel_threads_during = {pid: _allowed_cpus(pid) for pid in housekeeping}
         daemon.kill_group(signal.SIGINT)
         rc = daemon.wait()
     finally:
@@ -113,7 +124,10 @@ def test_one_cpu_for_the_loop_the_device_and_the_ttys_kernel_work(tmp_path: Path
     assert loop_cpus == {cpu} and device_cpus == {cpu}, (loop_cpus, device_cpus)
     assert len(logger_cpus) == 1 and cpu not in logger_cpus[0], logger_cpus
     assert f"realtime, fifo priority, CPU {cpu})" in daemon.stdout
+    assert housekeeping and all(cpu not in c for c in kernel_threads_during.values()), kernel_threads_during
     assert WORKQUEUE_CPUMASK.read_text().strip() == before and not STATE_FILE.exists()
+    assert {pid: _allowed_cpus(pid) for pid in housekeeping} == {p: c for p, (_, c) in housekeeping.items()}
+    assert not KERNEL_THREADS_STATE_FILE.exists()
 
     killed = DaemonProcess(["--mock", "--no-tui", "--duration", "60", "--cpu", str(cpu)])
     try:
@@ -123,12 +137,14 @@ def test_one_cpu_for_the_loop_the_device_and_the_ttys_kernel_work(tmp_path: Path
     finally:
         killed.kill_group(signal.SIGKILL)
     assert mask_cpus(WORKQUEUE_CPUMASK.read_text()) == {cpu}, "a killed run cannot put the mask back itself"
+    assert all(cpu not in _allowed_cpus(pid) for pid in housekeeping), "nor the threads' CPUs"
     after = DaemonProcess(["--mock", "--no-tui", "--duration", "1", "--cpu", str(cpu)])
     try:
         assert after.wait() == 0, after.stderr
     finally:
         after.kill_group(signal.SIGKILL)
     assert WORKQUEUE_CPUMASK.read_text().strip() == before and not STATE_FILE.exists()
+    assert {pid: _allowed_cpus(pid) for pid in housekeeping} == {p: c for p, (_, c) in housekeeping.items()}
 
 
 # ------------------------------------------------------------------ the controller design kept between runs

@@ -72,7 +72,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-rt", action="store_true", help="do not ask for SCHED_FIFO, memory locking or CPU pinning")
     p.add_argument("--cpu", type=int, metavar="N", help="pin the control loop to CPU N (with SCHED_FIFO), with the "
                    "kernel's tty work (as root) and, with --mock, the device: a SAMPLE → COMMAND round trip then waits "
-                   "for no other CPU; the logger and dashboard run on the others. Default: not pinned, as on a shared "
+                   "for no other CPU; the logger, the dashboard and (as root) the kernel's housekeeping threads run on "
+                   "the others, until the run ends. Default: not pinned, as on a shared "
                    "machine a pinned task cannot move away from a busy CPU")
     p.add_argument("--baud", type=int, default=1_000_000, help="UART baud rate (ignored by USB CDC; default 1000000)")
     p.add_argument("--watchdog-ms", type=int, metavar="MS",

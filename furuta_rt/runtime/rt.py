@@ -15,14 +15,15 @@ import gc
 import os
 
 from furuta_rt.cpu_idle import hold_wakeup_latency
-from furuta_rt.cpu_placement import UnboundWork, confine_unbound_work, pin_cpu
+from furuta_rt.cpu_placement import MovedThreads, UnboundWork, confine_unbound_work, move_kernel_threads_off, pin_cpu
 
 MCL_CURRENT = 1
 MCL_FUTURE = 2
 
 
 _HELD: list[int] = []  # the PM QoS request's descriptor: open for the life of the control process
-_CONFINED: list[UnboundWork] = []  # the kernel's unbound work on the loop's CPU, until release_cpu_work()
+_CONFINED: list[UnboundWork | MovedThreads] = []  # the kernel's unbound work on the loop's CPU, its housekeeping
+# threads off it, until release_cpu_work()
 _OTHER_CPUS: set[int] = set()  # the CPUs besides the one the loop is pinned to: where its helper processes run
 
 CONTROL_THREAD_STACK = 1 << 20  # bytes: a helper thread of the control process (queue feeder, watcher) needs little
@@ -116,13 +117,22 @@ def setup_realtime(enable: bool = True, priority: int = 50, cpu: int | None = No
                     warnings.append(w)
                 if confined is not None:
                     _CONFINED.append(confined)
-                    atexit.register(release_cpu_work)
                     applied.append(f"the kernel's tty work on CPU {pinned} too (until the run ends)")
+                moved, w = move_kernel_threads_off(pinned)
+                if w:
+                    warnings.append(w)
+                if moved is not None:
+                    _CONFINED.append(moved)
+                    applied.append(f"{len(moved.original)} kernel housekeeping threads off CPU {pinned} (until the run "
+                                   "ends)")
+                if _CONFINED:
+                    atexit.register(release_cpu_work)
     return applied, warnings
 
 
 def release_cpu_work() -> list[str]:
-    """Put the kernel's unbound work back where it was before ``setup_realtime(cpu=...)``; warnings, if any."""
+    """Put the kernel's unbound work and housekeeping threads back where they were before
+    ``setup_realtime(cpu=...)``; warnings, if any."""
     warnings = []
     while _CONFINED:
         w = _CONFINED.pop().restore()
