@@ -140,11 +140,13 @@ class CpuTimeline:
       was not running: on a virtual machine, the hypervisor had it.
     - ``held``: a task it had woken waited ≥ ``SILENCE_S`` while another task ran, and was charged for it — load,
       not the machine: the holder's name is kept.
-    ``events`` are the times of all its events (``deadline_silences``)."""
+    ``events`` are the times of all its events, ``by_idle`` whether the idle task was running when each was
+    recorded (``deadline_silences``)."""
 
     events: np.ndarray
     lost: np.ndarray  # (n, 2) starts, ends
     held: list[tuple[float, float, str]] = field(default_factory=list)
+    by_idle: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
 
 def read_timeline(path: Path, cpu: int, min_s: float = SILENCE_S) -> CpuTimeline:
@@ -154,6 +156,7 @@ def read_timeline(path: Path, cpu: int, min_s: float = SILENCE_S) -> CpuTimeline
     it came off the idle task (this kernel records no switch out of idle). Its charged time then runs from its
     wake-up: on a CPU that was running, a task woken onto it idle starts within microseconds."""
     times: list[float] = []
+    by_idle: list[bool] = []
     lost: list[tuple[float, float]] = []
     runs: list[tuple[float, float, str]] = []  # who held the CPU: (from, to, "comm (prio)")
     waits: list[tuple[float, float]] = []  # a woken or preempted task waiting ≥ min_s behind another
@@ -205,10 +208,11 @@ def read_timeline(path: Path, cpu: int, min_s: float = SILENCE_S) -> CpuTimeline
                 if current == 0:  # the CPU goes idle only when nothing is left to run on it
                     waiting.clear()
             times.append(t)
+            by_idle.append(running == 0)
             last = t
     starts, ends = np.array([r[0] for r in runs]), np.array([r[1] for r in runs])
     held = [(a, b, who) for a, b in waits if (who := _longest_holder(runs, starts, ends, a, b))]
-    return CpuTimeline(np.array(times), np.array(lost).reshape(-1, 2), held)
+    return CpuTimeline(np.array(times), np.array(lost).reshape(-1, 2), held, np.array(by_idle, dtype=bool))
 
 
 def _longest_holder(runs: list[tuple[float, float, str]], starts: np.ndarray, ends: np.ndarray, a: float,
@@ -222,13 +226,18 @@ def _longest_holder(runs: list[tuple[float, float, str]], starts: np.ndarray, en
     return max(held, key=held.__getitem__) if held else ""
 
 
-def deadline_silences(events: np.ndarray, deadlines: np.ndarray, min_s: float = SILENCE_S,
+def deadline_silences(timeline: CpuTimeline, deadlines: np.ndarray, min_s: float = SILENCE_S,
                       early_s: float = 150e-6) -> np.ndarray:
-    """Whether the CPU recorded nothing from ``early_s`` before each deadline to ``min_s`` after it (the device's
-    timer, set to wake it shortly before the deadline, could not fire: the CPU was not running)."""
+    """Whether the CPU recorded nothing from ``early_s`` before each deadline to ``min_s`` after it, and was idle
+    throughout (the next event is the idle task's: a task that ran in between would have recorded its switch out):
+    the device's timer, set to wake it shortly before the deadline, could not fire — the CPU was not running. A task
+    running across the deadline records nothing either; its charged time says whether the CPU ran it (``lost``)."""
+    events = timeline.events
     i = np.searchsorted(events, deadlines - early_s)
-    nxt = np.where(i < len(events), events[np.minimum(i, len(events) - 1)], np.inf)
-    return nxt - deadlines >= min_s
+    inside = i < len(events)
+    nxt = np.where(inside, events[np.minimum(i, len(events) - 1)], np.inf)
+    idle = np.where(inside, timeline.by_idle[np.minimum(i, len(events) - 1)], False)
+    return (nxt - deadlines >= min_s) & idle
 
 
 def _overlaps(spans: np.ndarray, a: float, b: float) -> bool:
@@ -249,7 +258,7 @@ def attribute_windows(windows: list[tuple[float, float, int]], timeline: CpuTime
         lead = a - 0.2 * period
         if _overlaps(timeline.lost, lead, b):
             counts["cpu_not_running"] += n
-        elif np.any(deadline_silences(timeline.events, a + period * np.arange(0, round((b - a) / period) + 1))):
+        elif np.any(deadline_silences(timeline, a + period * np.arange(0, round((b - a) / period) + 1))):
             counts["at_a_deadline"] += n
         else:
             unexplained += n

@@ -113,6 +113,18 @@ def test_a_task_charged_for_its_time_is_not_lost_time(tmp_path: Path) -> None:
     assert read_timeline(path, CPU).lost.size == 0
 
 
+def test_a_deadline_is_silent_only_on_an_idle_cpu(tmp_path: Path) -> None:
+    """Nothing recorded across a deadline is the machine's only if the CPU was idle: a task of ours that computes
+    through it, charged for the time, records nothing either, and that miss stays unexplained."""
+    path = tmp_path / "trace.txt"
+    path.write_text("\n".join([*tick(0.0098, False, us=700.0), *tick(0.01095, False)]) + "\n")
+    r = attribute_windows([(0.010, 0.011, 1)], read_timeline(path, CPU), P)
+    assert (r["machine"], r["unexplained"]) == (0, 1)
+    path.write_text("\n".join([*tick(0.0098, False, us=20.0), *tick(0.01095, False)]) + "\n")  # idle through it
+    r = attribute_windows([(0.010, 0.011, 1)], read_timeline(path, CPU), P)
+    assert r["machine_by_kind"]["at_a_deadline"] == 1
+
+
 def test_going_idle_ends_every_wait(tmp_path: Path) -> None:
     """A task woken onto the CPU that then ran elsewhere must not make later idle stretches lost time: the CPU goes
     idle only when nothing is left to run on it."""
